@@ -1,0 +1,126 @@
+"""On-disk format of a simulated procedure, and its loader.
+
+One folder per procedure:
+
+    rgb/000000.png     RGB frames, 8-bit PNG (lossless)
+    depth/000000.png   z-depth, 16-bit PNG: depth_cm = value * DEPTH_UNIT_CM, 0 = no surface
+    camera.json        width, height, fx, fy, cx, cy (pixels), fps
+    poses.npy          (N, 4, 4) float64 camera-to-world poses, cm
+    colon.ply          ground-truth mesh, cm
+    lumen.npy          (M, 3) float64 centerline from the rectum end, cm
+    coverage.json      ground-truth coverage (see hybrid.coverage.CoverageResult.to_json)
+    meta.json          seed, style, preset, configs and package version
+
+A folder is written under a temporary name and renamed when complete, so a folder with the
+final name is always whole.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from functools import cached_property
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from hybrid.coverage import CoverageResult, SurfaceMesh
+from hybrid.types import Camera, InputError, check_poses
+
+DEPTH_UNIT_CM = 0.002
+"""One step of the 16-bit depth PNGs: 20 µm, so the largest depth is 131 cm."""
+REQUIRED_FILES = ("camera.json", "poses.npy", "colon.ply", "lumen.npy", "coverage.json",
+                  "meta.json")
+
+
+def frame_name(index: int) -> str:
+    return f"{index:06d}.png"
+
+
+def write_rgb(path: Path, rgb: np.ndarray) -> None:
+    cv2.imwrite(str(path), cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
+
+
+def write_depth(path: Path, depth_cm: np.ndarray) -> None:
+    steps = np.round(depth_cm / DEPTH_UNIT_CM).clip(0, np.iinfo(np.uint16).max)
+    cv2.imwrite(str(path), steps.astype(np.uint16))
+
+
+def read_rgb(path: Path) -> np.ndarray:
+    image = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    if image is None:
+        raise InputError(f"cannot read image {path}")
+    return cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
+
+
+def read_depth(path: Path) -> np.ndarray:
+    steps = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if steps is None or steps.dtype != np.uint16:
+        raise InputError(f"cannot read 16-bit depth image {path}")
+    return steps.astype(np.float32) * DEPTH_UNIT_CM
+
+
+@dataclass(frozen=True)
+class Procedure:
+    """A simulated procedure on disk; arrays are read when first used."""
+
+    path: Path
+
+    @classmethod
+    def open(cls, path: Path) -> Procedure:
+        path = Path(path)
+        if not path.is_dir():
+            raise InputError(f"procedure folder not found: {path}")
+        missing = [f for f in REQUIRED_FILES if not (path / f).is_file()]
+        if missing:
+            raise InputError(f"procedure folder {path} lacks {', '.join(missing)}; "
+                             f"simulate it again with `c2d2 simulate`")
+        return cls(path)
+
+    @cached_property
+    def camera(self) -> Camera:
+        return Camera.load(self.path / "camera.json")
+
+    @cached_property
+    def poses(self) -> np.ndarray:
+        return check_poses(np.load(self.path / "poses.npy"), name=str(self.path / "poses.npy"))
+
+    @cached_property
+    def lumen(self) -> np.ndarray:
+        return np.load(self.path / "lumen.npy")
+
+    @cached_property
+    def coverage(self) -> CoverageResult:
+        return CoverageResult.from_json(json.loads((self.path / "coverage.json").read_text()))
+
+    @cached_property
+    def meta(self) -> dict:
+        return json.loads((self.path / "meta.json").read_text())
+
+    @property
+    def num_frames(self) -> int:
+        return len(self.poses)
+
+    def mesh(self) -> SurfaceMesh:
+        return SurfaceMesh.load(self.path / "colon.ply")
+
+    def rgb(self, index: int) -> np.ndarray:
+        """Frame `index` as RGB uint8 (H, W, 3)."""
+        return read_rgb(self.path / "rgb" / frame_name(index))
+
+    def depth(self, index: int) -> np.ndarray:
+        """z-depth of frame `index` in cm, float32 (H, W), 0 where invalid."""
+        return read_depth(self.path / "depth" / frame_name(index))
+
+
+def list_procedures(root: Path) -> list[Procedure]:
+    """Every complete procedure folder directly under root, sorted by name."""
+    root = Path(root)
+    if not root.is_dir():
+        raise InputError(f"dataset folder not found: {root}")
+    found = [Procedure(p) for p in sorted(root.iterdir())
+             if p.is_dir() and all((p / f).is_file() for f in REQUIRED_FILES)]
+    if not found:
+        raise InputError(f"no simulated procedures under {root}; make some with `c2d2 simulate`")
+    return found

@@ -1,0 +1,1 @@
+"""Colon simulator: procedural colons, withdrawal trajectories, rendering, datasets."""

@@ -1,0 +1,142 @@
+"""Simulate procedures to disk: colon, camera, withdrawal, rendered frames, ground truth.
+
+Reads nothing; writes one procedure folder per index in the format of `hybrid.dataset`.
+The procedure with index i of seed s depends only on (s, i), so a dataset can be extended or
+resumed and stays identical.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import shutil
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import asdict, dataclass, field, replace
+from multiprocessing import get_context
+from pathlib import Path
+
+import numpy as np
+import trimesh
+from tqdm import tqdm
+
+from hybrid import __version__
+from hybrid.coverage import Lumen, SurfaceMesh, compute_coverage
+from hybrid.dataset import REQUIRED_FILES, frame_name, write_depth, write_rgb
+from hybrid.sim.appearance import get_style, make_texture
+from hybrid.sim.colon import ColonConfig, make_colon
+from hybrid.sim.render import ColonRenderer
+from hybrid.sim.trajectory import TrajectoryConfig, make_withdrawal
+from hybrid.types import PRESET_IMAGE_SIZE, Camera
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class SimConfig:
+    """Everything that defines a simulated dataset besides the seed."""
+
+    preset: str = "fast"
+    """Image size preset: 'fast' (128x160) or 'paper' (320x384), height x width."""
+    style: str = "pink"
+    """Appearance style (see hybrid.sim.appearance.STYLES)."""
+    colon: ColonConfig = field(default_factory=ColonConfig)
+    """Colon shape and mesh resolution."""
+    trajectory: TrajectoryConfig = field(default_factory=TrajectoryConfig)
+    """Withdrawal behaviour."""
+    hfov_deg: tuple[float, float] = (90.0, 130.0)
+    """Range of the horizontal field of view of the simulated endoscopes."""
+    aspect_jitter: float = 0.02
+    """fy/fx is drawn in 1 +- this."""
+    principal_jitter: float = 0.03
+    """The principal point is drawn within +- this fraction of the size from the centre."""
+    segment_frames: int = 300
+    """Frames per coverage segment."""
+
+    def __post_init__(self) -> None:
+        if self.preset not in PRESET_IMAGE_SIZE:
+            raise ValueError(f"unknown preset {self.preset!r}; choose {sorted(PRESET_IMAGE_SIZE)}")
+        get_style(self.style)
+
+
+def procedure_name(index: int) -> str:
+    return f"proc_{index:04d}"
+
+
+def draw_camera(config: SimConfig, rng: np.random.Generator) -> Camera:
+    """Per-procedure pinhole intrinsics: a different endoscope each time."""
+    height, width = PRESET_IMAGE_SIZE[config.preset]
+    fx = (width / 2) / np.tan(np.radians(rng.uniform(*config.hfov_deg)) / 2)
+    fy = fx * (1 + rng.uniform(-config.aspect_jitter, config.aspect_jitter))
+    cx = (width - 1) / 2 + rng.uniform(-1, 1) * config.principal_jitter * width
+    cy = (height - 1) / 2 + rng.uniform(-1, 1) * config.principal_jitter * height
+    return Camera(width, height, float(fx), float(fy), float(cx), float(cy),
+                  fps=config.trajectory.fps)
+
+
+def simulate_procedure(out_dir: Path, seed: int, index: int, config: SimConfig,
+                       progress: bool = False) -> Path:
+    """Write procedure `index` of `seed` under out_dir; skip it if already complete."""
+    final = Path(out_dir) / procedure_name(index)
+    if all((final / f).is_file() for f in REQUIRED_FILES):
+        log.info("%s exists, skipped", final)
+        return final
+    work = final.with_name(final.name + ".partial")
+    shutil.rmtree(work, ignore_errors=True)
+    (work / "rgb").mkdir(parents=True)
+    (work / "depth").mkdir()
+
+    rng = np.random.default_rng([seed, index])
+    colon = make_colon(config.colon, rng)
+    camera = draw_camera(config, rng)
+    poses = make_withdrawal(colon, config.trajectory, rng)
+    style = get_style(config.style)
+    circumference = 2 * np.pi * float(np.mean(config.colon.radius_range_cm))
+    texture = make_texture(config.colon.length_cm, circumference, style, rng)
+    renderer = ColonRenderer(colon, texture, style, camera, circumference)
+    for i in tqdm(range(len(poses)), desc=f"render {final.name}", unit="frame",
+                  disable=not progress, leave=False):
+        rgb, depth = renderer.render(poses[i], rng)
+        write_rgb(work / "rgb" / frame_name(i), rgb)
+        write_depth(work / "depth" / frame_name(i), depth)
+
+    trimesh.Trimesh(colon.vertices, colon.triangles, process=False).export(work / "colon.ply")
+    np.save(work / "lumen.npy", colon.centerline)
+    np.save(work / "poses.npy", poses)
+    camera.save(work / "camera.json")
+    # Ground truth from the files just written, so `c2d2 coverage` on them gives the same.
+    coverage = compute_coverage(SurfaceMesh.load(work / "colon.ply"),
+                                Lumen(np.load(work / "lumen.npy")), poses, camera,
+                                segment_frames=config.segment_frames, progress=progress)
+    coverage.save(work / "coverage.json")
+    meta = {"seed": seed, "index": index, "c2d2_version": __version__,
+            "num_frames": len(poses), "config": asdict(config)}
+    (work / "meta.json").write_text(json.dumps(meta, indent=1) + "\n")
+    shutil.rmtree(final, ignore_errors=True)
+    work.rename(final)
+    return final
+
+
+def _simulate_one(args: tuple[Path, int, int, SimConfig]) -> Path:
+    return simulate_procedure(*args)
+
+
+def simulate_dataset(out_dir: Path, procedures: int, seed: int, config: SimConfig,
+                     workers: int = 1, first_index: int = 0) -> list[Path]:
+    """Simulate procedures first_index .. first_index + procedures - 1 (resumable)."""
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    jobs = [(out_dir, seed, first_index + k, config) for k in range(procedures)]
+    if workers <= 1:
+        return [simulate_procedure(*job, progress=True) for job in tqdm(jobs, desc="procedures")]
+    with ProcessPoolExecutor(workers, mp_context=get_context("spawn")) as pool:
+        return list(tqdm(pool.map(_simulate_one, jobs), total=len(jobs), desc="procedures"))
+
+
+def with_overrides(config: SimConfig, length_cm: float | None = None,
+                   max_frames: int | None = None) -> SimConfig:
+    """The config with a different colon length or frame cap."""
+    if length_cm is not None:
+        config = replace(config, colon=replace(config.colon, length_cm=length_cm))
+    if max_frames is not None:
+        config = replace(config, trajectory=replace(config.trajectory, max_frames=max_frames))
+    return config

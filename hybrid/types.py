@@ -1,0 +1,90 @@
+"""Types shared by every package: camera intrinsics, pose checks, input errors.
+
+This module imports nothing from the project, so `learned` and `fusion` may use it too.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+
+#: Image size (height, width) of each preset.
+PRESET_IMAGE_SIZE = {"fast": (128, 160), "paper": (320, 384)}
+
+
+class InputError(ValueError):
+    """Bad user input: the message names the input and says what to do."""
+
+
+@dataclass(frozen=True)
+class Camera:
+    """Pinhole camera; intrinsics in pixels of a width x height image (OpenCV convention)."""
+
+    width: int
+    height: int
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    fps: float = 30.0
+
+    def __post_init__(self) -> None:
+        values = (self.width, self.height, self.fx, self.fy, self.cx, self.cy, self.fps)
+        if not all(np.isfinite(v) for v in values):
+            raise InputError(f"camera has a non-finite value: {self}")
+        if self.width < 1 or self.height < 1 or self.fx <= 0 or self.fy <= 0 or self.fps <= 0:
+            raise InputError(f"camera needs positive width, height, fx, fy and fps: {self}")
+
+    @property
+    def K(self) -> np.ndarray:
+        """3x3 intrinsic matrix (float64)."""
+        return np.array([[self.fx, 0, self.cx], [0, self.fy, self.cy], [0, 0, 1]], dtype=np.float64)
+
+    def resized(self, width: int, height: int) -> Camera:
+        """The same camera for an image resized to width x height (pixel-centre convention)."""
+        sx, sy = width / self.width, height / self.height
+        return Camera(
+            width, height, self.fx * sx, self.fy * sy,
+            (self.cx + 0.5) * sx - 0.5, (self.cy + 0.5) * sy - 0.5, self.fps,
+        )
+
+    def save(self, path: Path) -> None:
+        Path(path).write_text(json.dumps(asdict(self), indent=2) + "\n")
+
+    @classmethod
+    def load(cls, path: Path) -> Camera:
+        path = Path(path)
+        if not path.is_file():
+            raise InputError(f"camera file not found: {path}")
+        try:
+            data = json.loads(path.read_text())
+            return cls(**{k: data[k] for k in ("width", "height", "fx", "fy", "cx", "cy")},
+                       fps=data.get("fps", 30.0))
+        except (json.JSONDecodeError, KeyError, TypeError) as err:
+            raise InputError(
+                f"camera file {path} must be JSON with width, height, fx, fy, cx, cy, fps: {err}"
+            ) from err
+
+
+def check_poses(poses: np.ndarray, name: str = "poses") -> np.ndarray:
+    """Validate an (N, 4, 4) stack of rigid camera-to-world poses; return it as float64."""
+    poses = np.asarray(poses)
+    if poses.ndim != 3 or poses.shape[1:] != (4, 4) or len(poses) == 0:
+        raise InputError(f"{name} must have shape (N, 4, 4) with N >= 1, got {poses.shape}")
+    poses = poses.astype(np.float64)
+    bad = np.flatnonzero(~np.isfinite(poses).all(axis=(1, 2)))
+    if bad.size:
+        raise InputError(f"{name} has NaN or infinite values at frames {bad[:10].tolist()}")
+    R = poses[:, :3, :3]
+    ortho_err = np.abs(R.transpose(0, 2, 1) @ R - np.eye(3)).max(axis=(1, 2))
+    bad = np.flatnonzero((ortho_err > 1e-4) | (np.linalg.det(R) < 0)
+                         | (np.abs(poses[:, 3] - [0, 0, 0, 1]).max(axis=1) > 1e-9))
+    if bad.size:
+        raise InputError(
+            f"{name} must be rigid camera-to-world transforms (rotation + translation, last row "
+            f"0 0 0 1); frames {bad[:10].tolist()} are not"
+        )
+    return poses

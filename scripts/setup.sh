@@ -1,0 +1,30 @@
+#!/usr/bin/env bash
+# Create .venv and install C2D2 with everything it needs (idempotent).
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+# Open3D needs the Debian library libusb-1.0-0.
+if ! ldconfig -p 2>/dev/null | grep -q 'libusb-1.0.so.0'; then
+  if [ "$(id -u)" = "0" ]; then
+    echo "[setup] installing Debian package libusb-1.0-0 (needed by Open3D)"
+    apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq libusb-1.0-0 >/dev/null
+  else
+    echo "[setup] Open3D needs the Debian library libusb-1.0-0. Run: sudo apt-get install -y libusb-1.0-0" >&2
+    exit 1
+  fi
+fi
+
+PY=${PYTHON:-python3}
+if [ ! -x .venv/bin/python ]; then
+  echo "[setup] creating .venv with $($PY --version)"
+  $PY -m venv .venv
+fi
+stamp=.venv/.c2d2-installed
+if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ]; then
+  echo "[setup] installing c2d2 and its dependencies into .venv (first time: several minutes)"
+  .venv/bin/python -m pip install -q --upgrade pip
+  # torch first, pinned: this takes the CPU build that lies on this machine.
+  .venv/bin/python -m pip install -q torch==2.13.0
+  .venv/bin/python -m pip install -q -e ".[dev]"
+  touch "$stamp"
+fi
