@@ -10,6 +10,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.interpolate import CubicSpline
 from scipy.spatial import cKDTree
 
 from hybrid.sim.noise import smooth_noise
@@ -21,6 +22,8 @@ _TEMPLATE = (
     (15.0, -100.0), (12.0, 20.0), (16.0, -40.0), (12.0, 20.0), (15.0, -80.0), (15.0, 0.0),
 )
 _TEMPLATE_LENGTH = sum(length for length, _ in _TEMPLATE)
+_SHAPE_STEP_CM = 0.1
+"""Grid on which the random shape is drawn, independent of the mesh resolution."""
 
 
 @dataclass(frozen=True)
@@ -76,17 +79,26 @@ class Colon:
 
 
 def make_colon(config: ColonConfig, rng: np.random.Generator) -> Colon:
-    """Draw one colon. Deterministic for a given generator state."""
+    """Draw one colon. Deterministic for a given generator state.
+
+    The shape (centerline, radius, folds) is drawn on a fixed 1 mm grid and then sampled at the
+    mesh resolution, so the same generator state gives the same colon at any resolution.
+    """
     if config.length_cm <= 0:
         raise ValueError(f"colon length must be positive, got {config.length_cm}")
+    n_shape = int(round(config.length_cm / _SHAPE_STEP_CM)) + 1
+    shape_ell = np.linspace(0.0, config.length_cm, n_shape)
+    shape_centerline = _centerline(shape_ell, config, rng)
+    shape_radius = _radius_profile(shape_ell, config, rng)
+    folds = _draw_folds(config, rng) if config.folds else []
+
     n_rings = int(round(config.length_cm / config.ring_spacing_cm)) + 1
     ell = np.linspace(0.0, config.length_cm, n_rings)
-    centerline = _centerline(ell, config, rng)
-    radius = _radius_profile(ell, config, rng)
+    centerline = CubicSpline(shape_ell, shape_centerline)(ell)
+    radius = np.interp(ell, shape_ell, shape_radius)
     frames = _rotation_minimising_frames(centerline)
     theta = np.linspace(0.0, 2 * np.pi, config.segments_around, endpoint=False)
-    fold_depth = _fold_depth(ell, theta, config, rng) if config.folds else np.zeros(
-        (n_rings, theta.size))
+    fold_depth = _fold_depth(ell, theta, folds, config.fold_sigma_cm)
     wall_radius = radius[:, None] - fold_depth
     directions = (np.cos(theta)[None, :, None] * frames[:, None, :, 1]
                   + np.sin(theta)[None, :, None] * frames[:, None, :, 2])
@@ -190,26 +202,42 @@ def _rotation_minimising_frames(points: np.ndarray) -> np.ndarray:
     return frames
 
 
-def _fold_depth(ell: np.ndarray, theta: np.ndarray, config: ColonConfig,
-                rng: np.random.Generator) -> np.ndarray:
-    """(M, S) inward wall displacement by haustral folds.
+@dataclass(frozen=True)
+class _FoldPiece:
+    position_cm: float
+    centre_rad: float
+    half_span_rad: float
+    height_cm: float
 
-    Folds stand every fold_spacing_cm; each is three crescent pieces centred between the three
-    taeniae (120° apart), each with its own height and a small offset along the lumen.
+
+def _draw_folds(config: ColonConfig, rng: np.random.Generator) -> list[_FoldPiece]:
+    """Fold rings every fold_spacing_cm, each three crescent pieces between the taeniae.
+
+    The taeniae are 120° apart; each piece has its own height, span and offset along the lumen.
     """
-    depth = np.zeros((ell.size, theta.size))
     lo, hi = config.fold_spacing_cm
     taenia = rng.uniform(0, 2 * np.pi)
+    pieces = []
     position = rng.uniform(lo, hi)
-    while position < ell[-1] - 1.0:
+    while position < config.length_cm - 1.0:
         for piece in range(3):
-            centre = taenia + (piece + 0.5) * 2 * np.pi / 3
-            half_span = np.radians(rng.uniform(45.0, 58.0))
-            height = rng.uniform(*config.fold_height_cm)
-            shift = rng.uniform(-0.3, 0.3)
-            offset = np.angle(np.exp(1j * (theta - centre)))
-            across = np.sqrt(np.clip(1 - (offset / half_span) ** 2, 0, None))
-            along = np.exp(-0.5 * ((ell - position - shift) / config.fold_sigma_cm) ** 2)
-            depth = np.maximum(depth, height * along[:, None] * across[None, :])
+            pieces.append(_FoldPiece(
+                position_cm=position + rng.uniform(-0.3, 0.3),
+                centre_rad=taenia + (piece + 0.5) * 2 * np.pi / 3,
+                half_span_rad=np.radians(rng.uniform(45.0, 58.0)),
+                height_cm=rng.uniform(*config.fold_height_cm),
+            ))
         position += rng.uniform(lo, hi)
+    return pieces
+
+
+def _fold_depth(ell: np.ndarray, theta: np.ndarray, pieces: list[_FoldPiece], sigma_cm: float
+                ) -> np.ndarray:
+    """(M, S) inward wall displacement: Gaussian along ℓ, crescent-shaped around θ."""
+    depth = np.zeros((ell.size, theta.size))
+    for p in pieces:
+        offset = np.angle(np.exp(1j * (theta - p.centre_rad)))
+        across = np.sqrt(np.clip(1 - (offset / p.half_span_rad) ** 2, 0, None))
+        along = np.exp(-0.5 * ((ell - p.position_cm) / sigma_cm) ** 2)
+        depth = np.maximum(depth, p.height_cm * along[:, None] * across[None, :])
     return depth
