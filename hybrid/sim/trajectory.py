@@ -43,12 +43,12 @@ class TrajectoryConfig:
     """Smallest distance kept between the camera and the tip of a fold."""
     jitter_deg: float = 8.0
     """Amplitude of the small smooth deviations of the view direction."""
-    excursions_per_min: tuple[float, float] = (0.5, 5.0)
+    excursions_per_min: tuple[float, float] = (0.5, 8.0)
     """Range of the procedure's rate of looks towards the wall."""
-    excursion_deg: tuple[float, float] = (30.0, 100.0)
+    excursion_deg: tuple[float, float] = (40.0, 150.0)
     """How far from the lumen direction an excursion turns the camera."""
-    excursion_s: tuple[float, float] = (2.0, 12.0)
-    """How long an excursion lasts."""
+    excursion_s: tuple[float, float] = (2.0, 20.0)
+    """How long an excursion lasts, including a 1 s turn at each end."""
     roll_deg: float = 60.0
     """Amplitude of the smooth roll about the view axis."""
     max_frames: int | None = None
@@ -92,7 +92,7 @@ def make_withdrawal(colon: Colon, config: TrajectoryConfig, rng: np.random.Gener
     deviation = np.radians(config.jitter_deg) * smooth_noise(rng, n, 1.5 * fps, dims=2)
     deviation += _excursions(n, config, rng)
     norm = np.linalg.norm(deviation, axis=1, keepdims=True)
-    deviation *= np.minimum(1.0, np.radians(115.0) / np.maximum(norm, 1e-12))
+    deviation *= np.minimum(1.0, np.radians(160.0) / np.maximum(norm, 1e-12))
     roll = np.radians(config.roll_deg) * smooth_noise(rng, n, 4.0 * fps)[:, 0] + rng.uniform(
         -np.pi, np.pi)
     turn = Rotation.from_euler("z", roll[:, None]) * Rotation.from_rotvec(
@@ -130,7 +130,7 @@ def _excursions(n: int, config: TrajectoryConfig, rng: np.random.Generator) -> n
     for centre, duration in _events(n, rate, config.excursion_s, config.fps, rng):
         angle = np.radians(rng.uniform(*config.excursion_deg))
         direction = rng.uniform(0, 2 * np.pi)
-        shape = _hann(t, centre, duration)
+        shape = _plateau(t, centre, duration, ramp=config.fps)
         out += angle * shape[:, None] * np.array([np.cos(direction), np.sin(direction)])
     return out
 
@@ -157,6 +157,13 @@ def _events(n: int, per_min: float, duration_s: tuple[float, float], fps: float,
 def _hann(t: np.ndarray, centre: float, duration: float) -> np.ndarray:
     x = np.clip((t - centre) / duration, -0.5, 0.5)
     return np.cos(np.pi * x) ** 2
+
+
+def _plateau(t: np.ndarray, centre: float, duration: float, ramp: float) -> np.ndarray:
+    """1 over the event, with smooth cosine ramps of `ramp` frames inside its ends."""
+    ramp = min(ramp, duration / 2)
+    inside = np.clip((duration / 2 - np.abs(t - centre)) / ramp, 0.0, 1.0)
+    return np.sin(0.5 * np.pi * inside) ** 2
 
 
 def _interp_rows(index: np.ndarray, rows: np.ndarray) -> np.ndarray:
