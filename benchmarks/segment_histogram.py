@@ -4,7 +4,8 @@ Draws colons and withdrawals exactly as `c2d2 simulate` does (same generator per
 (seed, index)) but skips rendering, which does not change coverage. Prints the histogram and
 writes a PNG.
 
-    .venv/bin/python benchmarks/segment_histogram.py --procedures 12 --out docs/segment_histogram.png
+    .venv/bin/python benchmarks/segment_histogram.py --procedures 12 \
+        --out docs/segment_histogram.png
 """
 
 from __future__ import annotations
@@ -52,9 +53,10 @@ def main() -> None:
     fig, ax = plt.subplots(figsize=(6, 3.5), layout="constrained")
     for k, v in values.items():
         counts, _ = np.histogram(v, bins)
+        classes, _ = np.histogram(v, [0.0, 0.4, 0.8, 1.0])
         print(f"Δ = {k} cm: {v.size} segments, mean {v.mean():.3f}, min {v.min():.3f}, "
-              f"max {v.max():.3f}; counts per 0.1 bin {counts.tolist()}; 3-class "
-              f"{[int((v < 0.4).sum()), int(((v >= 0.4) & (v < 0.8)).sum()), int((v >= 0.8).sum())]}")
+              f"max {v.max():.3f}; counts per 0.1 bin {counts.tolist()}; "
+              f"3-class [0,0.4) [0.4,0.8) [0.8,1]: {classes.tolist()}")
         ax.hist(v, bins, histtype="step", lw=1.5, label=f"Δ = {k} cm")
     ax.set_xlabel("segment coverage (ground truth)")
     ax.set_ylabel("segments")
