@@ -30,16 +30,17 @@ class ColonRenderer:
         self.scene.add_triangles(o3d.core.Tensor(colon.vertices.astype(np.float32)),
                                  o3d.core.Tensor(colon.triangles.astype(np.uint32)))
         tris = colon.triangles
-        self._corner_normals = _vertex_normals(colon.vertices, tris)[tris].astype(np.float32)
+        normals = _vertex_normals(colon.vertices, tris)[tris]
         uv = colon.surface_uv[tris]  # (T, 3, 2); unwrap triangles that cross the θ seam
         v = uv[..., 1]
         crosses = (v.max(axis=1) - v.min(axis=1)) > circumference_cm / 2
         v[crosses] = np.where(v[crosses] < circumference_cm / 2, v[crosses] + circumference_cm,
                               v[crosses])
-        self._corner_uv = (uv * TEXELS_PER_CM).astype(np.float32)
+        # Per-triangle corner attributes: texel row, texel column, normal (T, 3, 5).
+        self._corners = np.concatenate([uv * TEXELS_PER_CM, normals], axis=-1).astype(np.float32)
         u, w = np.meshgrid(np.arange(camera.width), np.arange(camera.height))
         self._rays_cam = np.stack([(u - camera.cx) / camera.fx, (w - camera.cy) / camera.fy,
-                                   np.ones_like(u, dtype=np.float64)], axis=-1)
+                                   np.ones(u.shape)], axis=-1).astype(np.float32)
         radius2 = ((u - (camera.width - 1) / 2) ** 2 + (w - (camera.height - 1) / 2) ** 2) / (
             ((camera.width - 1) / 2) ** 2 + ((camera.height - 1) / 2) ** 2)
         self._vignette = (1.0 - style.vignetting * radius2)[..., None].astype(np.float32)
@@ -47,20 +48,19 @@ class ColonRenderer:
     def render(self, pose: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
         """RGB uint8 (H, W, 3) and z-depth float32 (H, W), 0 where no wall was hit."""
         R, p = pose[:3, :3], pose[:3, 3]
-        dirs = self._rays_cam @ R.T  # z-component 1 in the camera: t_hit is the z-depth
-        rays = np.concatenate([np.broadcast_to(p, dirs.shape), dirs], axis=-1).astype(np.float32)
+        dirs = self._rays_cam @ R.T.astype(np.float32)  # camera z = 1: t_hit is the z-depth
+        rays = np.concatenate([np.broadcast_to(p.astype(np.float32), dirs.shape), dirs], axis=-1)
         hit = self.scene.cast_rays(o3d.core.Tensor(rays))
         depth = hit["t_hit"].numpy()
         valid = np.isfinite(depth)
         tri = np.where(valid, hit["primitive_ids"].numpy(), 0).astype(np.int64)
         bary = hit["primitive_uvs"].numpy()
         weights = np.stack([1 - bary[..., 0] - bary[..., 1], bary[..., 0], bary[..., 1]], axis=-1)
-        weights = weights[..., None].astype(np.float32)
-        uv = (weights * self._corner_uv[tri]).sum(axis=-2)
-        normal = (weights * self._corner_normals[tri]).sum(axis=-2)
+        attributes = np.einsum("hwk,hwkc->hwc", weights, self._corners[tri])
+        normal = attributes[..., 2:]
         normal /= np.linalg.norm(normal, axis=-1, keepdims=True).clip(1e-12)
 
-        albedo = cv2.remap(self.texture, uv[..., 1], uv[..., 0], cv2.INTER_LINEAR,
+        albedo = cv2.remap(self.texture, attributes[..., 1], attributes[..., 0], cv2.INTER_LINEAR,
                            borderMode=cv2.BORDER_WRAP)
         ray_len = np.linalg.norm(dirs, axis=-1)
         distance = np.where(valid, depth, 1.0) * ray_len
@@ -74,7 +74,7 @@ class ColonRenderer:
         if sigma > 0:
             linear = cv2.GaussianBlur(linear, (0, 0), sigma)
         image = np.clip(linear, 0.0, 1.0) ** (1.0 / s.gamma)
-        image += rng.normal(0.0, s.noise_std, image.shape).astype(np.float32)
+        image += s.noise_std * rng.standard_normal(image.shape, dtype=np.float32)
         rgb = (np.clip(image, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
         return rgb, np.where(valid, depth, 0.0).astype(np.float32)
 
