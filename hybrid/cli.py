@@ -122,3 +122,98 @@ def _load_npy(path: Path):
         return np.load(path, allow_pickle=False)
     except (ValueError, OSError) as err:
         raise InputError(f"cannot read {path} as a .npy array: {err}") from err
+
+
+@app.command("train-depth")
+@_reports_input_errors
+def train_depth(
+    data: Annotated[list[Path], typer.Option(help="Procedures, image folders or videos (or "
+                                             "folders of them); RGB only is used.")],
+    out: Annotated[Path, typer.Option(help="Run folder: checkpoint, config, metrics log.")],
+    preset: Annotated[str, typer.Option(help="fast (CPU, 128x160) or paper (ResNet-18, "
+                                        "320x384).")] = "fast",
+    val: Annotated[list[Path] | None, typer.Option(help="Simulated procedures for validation "
+                                                   "metrics (their truth is used for nothing "
+                                                   "else).")] = None,
+    steps: Annotated[int | None, typer.Option(help="Training steps (preset default).")] = None,
+    batch_size: Annotated[int | None, typer.Option(help="Triplets per step.")] = None,
+    seed: Annotated[int | None, typer.Option(help="Random seed.")] = None,
+):
+    """Train depth, ego-motion and intrinsics by view synthesis; resumes from --out."""
+    from learned.config import depth_config
+    from learned.train import train_depth as run
+
+    try:
+        config = depth_config(preset, steps=steps, batch_size=batch_size, seed=seed)
+    except ValueError as err:
+        raise InputError(str(err)) from err
+    typer.echo(str(run(data, out, config, val or [])))
+
+
+@app.command()
+@_reports_input_errors
+def depth(
+    input: Annotated[Path, typer.Argument(help="Video, folder of images, or simulated "
+                                          "procedure.")],
+    out: Annotated[Path, typer.Option(help="Folder for depth/, poses and intrinsics.json.")],
+    checkpoint: Annotated[Path | None, typer.Option(help="Depth checkpoint (default: the "
+                                                    "shipped fast one).")] = None,
+    mask: Annotated[Path | None, typer.Option(help="Image-region mask (white = image) in the "
+                                              "input's size; detected if omitted.")] = None,
+):
+    """Per-frame depth, relative poses and one intrinsics estimate for an input."""
+    import cv2
+
+    from learned.frames import open_sequence
+    from learned.infer import infer_sequence, write_depth_outputs
+    from learned.model import load_depth_model
+
+    model = load_depth_model(checkpoint or _shipped_checkpoint())
+    region = None
+    if mask is not None:
+        image = cv2.imread(str(mask), cv2.IMREAD_GRAYSCALE)
+        if image is None:
+            raise InputError(f"cannot read mask image {mask}")
+        region = image > 127
+    seq = open_sequence(input, (model.config.height, model.config.width), region)
+    write_depth_outputs(out, seq, infer_sequence(model, seq, progress=True))
+    typer.echo(str(out))
+
+
+@app.command("eval-depth")
+@_reports_input_errors
+def eval_depth(
+    data: Annotated[list[Path], typer.Option(help="Simulated procedures (or folders of them).")],
+    checkpoint: Annotated[Path | None, typer.Option(help="Depth checkpoint (default: the "
+                                                    "shipped fast one).")] = None,
+    out: Annotated[Path | None, typer.Option(help="Write the metrics JSON here.")] = None,
+    frames: Annotated[int, typer.Option(help="Frames per procedure for depth metrics.")] = 24,
+):
+    """MRE, DR-MRE, DOM, abs_rel & co., intrinsics error, ATE and RPE on simulated data."""
+    from learned.evaluate import DEPTH_KEYS, evaluate_sequence, summarise
+    from learned.frames import open_sequence
+    from learned.model import load_depth_model
+    from learned.train import expand_inputs
+
+    model = load_depth_model(checkpoint or _shipped_checkpoint())
+    size = (model.config.height, model.config.width)
+    results = {}
+    for path in expand_inputs(data):
+        results[path.name] = evaluate_sequence(model, open_sequence(path, size), frames)
+    summary = summarise(results)
+    keys = DEPTH_KEYS + ("fx_rel", "fy_rel", "cx_rel", "cy_rel", "ate", "rpe_translation",
+                         "rpe_rotation_deg")
+    typer.echo("procedure      " + " ".join(f"{k:>9.9s}" for k in keys))
+    for name, m in [*results.items(), ("MEAN", summary)]:
+        typer.echo(f"{name:14.14s} " + " ".join(f"{m[k]:9.4f}" for k in keys))
+    if out is not None:
+        out.write_text(json.dumps({"mean": summary, "procedures": results}, indent=1) + "\n")
+
+
+def _shipped_checkpoint() -> Path:
+    from learned.checkpoints import SHIPPED_DEPTH
+
+    if not SHIPPED_DEPTH.is_file():
+        raise InputError(f"no shipped checkpoint at {SHIPPED_DEPTH}; train one with "
+                         f"`c2d2 train-depth` and pass --checkpoint")
+    return SHIPPED_DEPTH

@@ -78,11 +78,15 @@ class SurfaceMesh:
         if not path.is_file():
             raise InputError(f"mesh file not found: {path}")
         try:
-            mesh = trimesh.load(path, force="mesh", process=False)
+            mesh = trimesh.load(path, process=False)
         except Exception as err:  # trimesh raises many types for unreadable files
             raise InputError(f"cannot read mesh {path}: {err}") from err
-        faces = getattr(mesh, "faces", np.zeros((0, 3)))
-        return cls.from_arrays(getattr(mesh, "vertices", np.zeros((0, 3))), faces, name=str(path))
+        if isinstance(mesh, trimesh.Scene):
+            mesh = mesh.to_mesh()
+        faces = getattr(mesh, "faces", None)
+        if faces is None or len(faces) == 0:
+            raise InputError(f"{path} has no triangles; give a triangle mesh, not a point cloud")
+        return cls.from_arrays(mesh.vertices, faces, name=str(path))
 
     def raycasting_scene(self) -> o3d.t.geometry.RaycastingScene:
         scene = o3d.t.geometry.RaycastingScene()
@@ -210,7 +214,8 @@ class VisibilityOracle:
     def check_inside(self, positions: np.ndarray, lumen: Lumen, name: str = "poses") -> None:
         """Raise if a camera centre lies outside the wall around the lumen.
 
-        From the nearest lumen point, a ray towards the camera must meet the wall beyond the camera.
+        From the nearest lumen point, a ray towards the camera must meet the wall beyond the camera
+        (a ray that meets no wall, e.g. out of an open end, means the camera is outside).
         """
         _, nearest = lumen.project(positions)
         offset = positions - nearest
@@ -219,7 +224,7 @@ class VisibilityOracle:
         direction[dist <= 1e-9] = (1.0, 0.0, 0.0)
         rays = np.concatenate([nearest, direction], axis=1).astype(np.float32)
         wall = self.scene.cast_rays(o3d.core.Tensor(rays))["t_hit"].numpy()
-        outside = np.flatnonzero(~(wall > dist))
+        outside = np.flatnonzero(~(np.isfinite(wall) & (wall > dist)))
         if outside.size:
             raise InputError(
                 f"{name}: camera centres of frames {outside[:10].tolist()} are outside the mesh "

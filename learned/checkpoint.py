@@ -1,0 +1,80 @@
+"""Checkpoints as safetensors: weights, optimiser state, step and the resolved config.
+
+Everything needed to resume or to run inference is in one file; the config and the package
+version sit in its metadata. Writes go to a temporary file that is renamed when complete.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+import torch
+from safetensors import SafetensorError, safe_open
+from safetensors.torch import load_file, save_file
+
+from hybrid import __version__
+from hybrid.types import InputError
+
+
+def save_checkpoint(path: Path, modules: dict[str, torch.nn.Module], config: dict,
+                    step: int, optimizer: torch.optim.Optimizer | None = None,
+                    kind: str = "depth") -> None:
+    """Write modules' weights (and the optimiser's state) to path atomically."""
+    tensors = {f"{name}.{k}": v.detach().contiguous()
+               for name, module in modules.items() for k, v in module.state_dict().items()}
+    meta = {"kind": kind, "config": json.dumps(config), "step": str(step),
+            "c2d2_version": __version__}
+    if optimizer is not None:
+        state = optimizer.state_dict()
+        for index, values in state["state"].items():
+            for key, value in values.items():
+                tensors[f"optimizer.{index}.{key}"] = torch.as_tensor(value).contiguous()
+        meta["optimizer_groups"] = json.dumps(state["param_groups"])
+    path = Path(path)
+    tmp = path.with_name(path.name + ".tmp")
+    save_file(tensors, str(tmp), metadata=meta)
+    os.replace(tmp, path)
+
+
+def read_checkpoint(path: Path, kind: str = "depth") -> tuple[dict[str, torch.Tensor], dict]:
+    """Tensors and metadata (config parsed) of a checkpoint; checks its kind."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"checkpoint not found: {path}")
+    try:
+        tensors = load_file(str(path))
+        with safe_open(str(path), "pt") as handle:
+            meta = dict(handle.metadata() or {})
+    except (SafetensorError, OSError) as err:
+        raise InputError(f"cannot read checkpoint {path}: {err}") from err
+    if meta.get("kind") != kind:
+        raise InputError(f"{path} is a {meta.get('kind')!r} checkpoint, not a {kind!r} one")
+    meta["config"] = json.loads(meta["config"])
+    meta["step"] = int(meta["step"])
+    return tensors, meta
+
+
+def load_modules(tensors: dict[str, torch.Tensor], modules: dict[str, torch.nn.Module],
+                 path: Path) -> None:
+    """Load each module's weights from the checkpoint's tensors, with a clear error."""
+    for name, module in modules.items():
+        prefix = f"{name}."
+        state = {k[len(prefix):]: v for k, v in tensors.items() if k.startswith(prefix)}
+        try:
+            module.load_state_dict(state)
+        except RuntimeError as err:
+            raise InputError(f"{path}: weights of {name!r} do not fit this network (a checkpoint "
+                             f"of another preset?): {str(err).splitlines()[0]}") from err
+
+
+def load_optimizer(tensors: dict[str, torch.Tensor], meta: dict,
+                   optimizer: torch.optim.Optimizer) -> None:
+    state: dict[int, dict[str, torch.Tensor]] = {}
+    for key, value in tensors.items():
+        if key.startswith("optimizer."):
+            _, index, name = key.split(".", 2)
+            state.setdefault(int(index), {})[name] = value
+    optimizer.load_state_dict({"state": state,
+                               "param_groups": json.loads(meta["optimizer_groups"])})

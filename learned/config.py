@@ -1,0 +1,91 @@
+"""Configs of the depth + motion + intrinsics networks and their training, with named presets."""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, fields, replace
+
+
+@dataclass(frozen=True)
+class DepthConfig:
+    """Network sizes, losses and training schedule of the unsupervised depth learner."""
+
+    preset: str = "fast"
+    """Name of the preset this config came from."""
+    height: int = 128
+    """Network input height (pixels)."""
+    width: int = 160
+    """Network input width (pixels)."""
+    encoder_channels: tuple[int, ...] = (16, 24, 32, 64, 96)
+    """Depth encoder: stem channels, then the four residual stages."""
+    encoder_blocks: tuple[int, ...] = (1, 1, 1, 1)
+    """Residual blocks per encoder stage."""
+    decoder_channels: tuple[int, ...] = (16, 16, 24, 32, 48)
+    """Depth decoder channels at strides 1, 2, 4, 8, 16."""
+    motion_channels: tuple[int, ...] = (16, 24, 32, 64, 96)
+    """Motion encoder: stem channels, then the four residual stages."""
+    motion_blocks: tuple[int, ...] = (1, 1, 1, 1)
+    """Residual blocks per motion encoder stage."""
+    min_depth: float = 0.1
+    """Smallest depth the network can output (its scale is arbitrary)."""
+    max_depth: float = 100.0
+    """Largest depth the network can output."""
+    pair_gap_s: float = 0.2
+    """Time between the target frame and each source frame."""
+    batch_size: int = 8
+    """Triplets per step."""
+    learning_rate: float = 5e-4
+    """Adam learning rate."""
+    grad_clip: float = 10.0
+    """Gradient norm clip."""
+    steps: int = 6000
+    """Training steps."""
+    w_ssim: float = 0.85
+    """Weight of (1 - SSIM) / 2 in the photometric error."""
+    w_l1: float = 0.15
+    """Weight of L1 in the photometric error."""
+    w_smooth: float = 1e-3
+    """Edge-aware smoothness of mean-normalised disparity."""
+    w_depth_consistency: float = 1e-2
+    """Occlusion-aware depth consistency between target and sources."""
+    w_rotation_cycle: float = 1e-3
+    """Forward and backward rotations compose to the identity."""
+    w_translation_cycle: float = 1e-2
+    """Forward and backward translations cancel."""
+    automask: bool = True
+    """Ignore pixels that the un-warped source explains better (static scenes)."""
+    brightness_match: bool = True
+    """Match each warped source's per-channel mean and std to the target's."""
+    specular_mask: bool = True
+    """Ignore near-white specular highlights."""
+    inverse_square: bool = False
+    """Scale warped intensity by (source ray length / target ray length)^2 (light at camera)."""
+    seed: int = 0
+    """Random seed (initialisation and sampling)."""
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, data: dict) -> DepthConfig:
+        known = {f.name for f in fields(cls)}
+        values = {k: tuple(v) if isinstance(v, list) else v for k, v in data.items() if k in known}
+        return cls(**values)
+
+
+DEPTH_PRESETS: dict[str, DepthConfig] = {
+    "fast": DepthConfig(),
+    "paper": DepthConfig(
+        preset="paper", height=320, width=384,
+        encoder_channels=(64, 64, 128, 256, 512), encoder_blocks=(2, 2, 2, 2),
+        decoder_channels=(16, 32, 64, 128, 256),
+        motion_channels=(64, 64, 128, 256, 512), motion_blocks=(2, 2, 2, 2),
+        batch_size=4, learning_rate=2e-4, steps=200_000,
+    ),
+}
+"""`fast` is sized for a 2-core CPU; `paper` is ResNet-18 at 320x384 as in the paper."""
+
+
+def depth_config(preset: str, **overrides) -> DepthConfig:
+    if preset not in DEPTH_PRESETS:
+        raise ValueError(f"unknown preset {preset!r}; choose one of {sorted(DEPTH_PRESETS)}")
+    return replace(DEPTH_PRESETS[preset], **{k: v for k, v in overrides.items() if v is not None})

@@ -1,0 +1,166 @@
+"""Frame sequences at the network's size: simulated procedures, image folders, videos.
+
+Real endoscope frames carry a black border (circular or octagonal mask, overlays). The image
+region is detected from frames sampled over the sequence (pixels that are ever bright), the
+frames are cropped to its bounding box and resized; the region becomes a mask so that losses
+ignore the border. `Crop` maps intrinsics back to the input's own pixels.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from hybrid.types import Camera, InputError
+
+VIDEO_SUFFIXES = {".mp4", ".avi", ".mov", ".mkv", ".mpg", ".mpeg", ".webm", ".m4v", ".wmv"}
+IMAGE_SUFFIXES = {".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff"}
+_DARK = 20
+"""Grey level (0-255) below which a pixel that is never brighter belongs to the border."""
+
+
+@dataclass(frozen=True)
+class Crop:
+    """The image region's bounding box in input pixels, and the input size."""
+
+    x0: int
+    y0: int
+    width: int
+    height: int
+    input_width: int
+    input_height: int
+
+    def camera_to_input(self, camera: Camera) -> Camera:
+        """Intrinsics of the network-sized crop expressed in the input's pixels."""
+        full = camera.resized(self.width, self.height)
+        return Camera(self.input_width, self.input_height, full.fx, full.fy,
+                      full.cx + self.x0, full.cy + self.y0, camera.fps)
+
+
+def detect_region(frames: list[np.ndarray]) -> np.ndarray:
+    """(H, W) bool image region: pixels ever brighter than the border, largest component.
+
+    frames: RGB uint8 frames sampled over the sequence.
+    """
+    brightest = np.max([cv2.cvtColor(f, cv2.COLOR_RGB2GRAY) for f in frames], axis=0)
+    bright = (brightest > _DARK).astype(np.uint8)
+    count, labels, stats, _ = cv2.connectedComponentsWithStats(bright, connectivity=8)
+    if count <= 1:
+        raise InputError("every frame is black: no image region found")
+    largest = 1 + int(np.argmax(stats[1:, cv2.CC_STAT_AREA]))
+    region = (labels == largest).astype(np.uint8)
+    # Fill holes (dark lumen, overlays inside the region), then trim the soft edge.
+    filled = region.copy()
+    contours, _ = cv2.findContours(region, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
+    cv2.drawContours(filled, contours, -1, 1, thickness=cv2.FILLED)
+    return cv2.erode(filled, np.ones((5, 5), np.uint8)).astype(bool)
+
+
+class FrameSequence:
+    """Frames of one video-like input, cropped to the image region and resized to (H, W)."""
+
+    def __init__(self, name: str, fps: float, size: tuple[int, int], loader, count: int,
+                 region: np.ndarray | None = None, camera: Camera | None = None,
+                 depth_loader=None, poses: np.ndarray | None = None):
+        if count < 2:
+            raise InputError(f"{name}: needs at least 2 frames, found {count}")
+        self.name, self.fps, self.size, self.num_frames = name, fps, size, count
+        self._load = loader
+        self._depth = depth_loader
+        self.poses = poses
+        first = loader(0)
+        if first.ndim != 3 or first.shape[2] != 3:
+            raise InputError(f"{name}: frames must be RGB with 3 channels, got shape {first.shape}")
+        picks = np.linspace(0, count - 1, min(count, 24)).round().astype(int)
+        full_region = region if region is not None else detect_region([loader(i) for i in picks])
+        if full_region.shape != first.shape[:2] or not full_region.any():
+            raise InputError(f"{name}: the image region must be a non-empty mask of the frame "
+                             f"size {first.shape[:2]}, got {full_region.shape}")
+        ys, xs = np.nonzero(full_region)
+        h_in, w_in = full_region.shape
+        self.crop = Crop(int(xs.min()), int(ys.min()), int(xs.max() - xs.min() + 1),
+                         int(ys.max() - ys.min() + 1), w_in, h_in)
+        self.region = self._fit(full_region.astype(np.uint8), cv2.INTER_NEAREST).astype(bool)
+        self.camera = None if camera is None else camera.resized(size[1], size[0])
+
+    def _fit(self, image: np.ndarray, interpolation: int) -> np.ndarray:
+        c = self.crop
+        crop = image[c.y0:c.y0 + c.height, c.x0:c.x0 + c.width]
+        return cv2.resize(crop, (self.size[1], self.size[0]), interpolation=interpolation)
+
+    def frame(self, index: int) -> np.ndarray:
+        """RGB uint8 (H, W, 3) at network size."""
+        return self._fit(self._load(index), cv2.INTER_AREA)
+
+    def depth(self, index: int) -> np.ndarray | None:
+        """Ground-truth z-depth at network size (simulated inputs only)."""
+        return None if self._depth is None else self._fit(self._depth(index), cv2.INTER_NEAREST)
+
+
+def open_sequence(path: Path, size: tuple[int, int], region: np.ndarray | None = None
+                  ) -> FrameSequence:
+    """A simulated procedure folder, a folder of images, or a video file.
+
+    region: the image region in input pixels (bool); detected from the frames if None.
+    """
+    path = Path(path)
+    if not path.exists():
+        raise InputError(f"input not found: {path}")
+    if path.is_dir() and (path / "rgb").is_dir() and (path / "camera.json").is_file():
+        return _simulated(path, size)
+    if path.is_dir():
+        return _image_folder(path, size, region)
+    if path.suffix.lower() in VIDEO_SUFFIXES:
+        return _video(path, size, region)
+    raise InputError(f"{path}: not a video ({', '.join(sorted(VIDEO_SUFFIXES))}), a folder of "
+                     f"images or a simulated procedure")
+
+
+def _simulated(path: Path, size: tuple[int, int]) -> FrameSequence:
+    from hybrid.dataset import Procedure
+
+    proc = Procedure.open(path)
+    region = np.ones((proc.camera.height, proc.camera.width), dtype=bool)
+    return FrameSequence(path.name, proc.camera.fps, size, proc.rgb, proc.num_frames,
+                         region=region, camera=proc.camera, depth_loader=proc.depth,
+                         poses=proc.poses)
+
+
+def _image_folder(path: Path, size: tuple[int, int], region: np.ndarray | None
+                  ) -> FrameSequence:
+    files = sorted(p for p in path.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
+    if not files:
+        raise InputError(f"{path}: no images ({', '.join(sorted(IMAGE_SUFFIXES))}) in folder")
+
+    def load(index: int) -> np.ndarray:
+        image = cv2.imread(str(files[index]), cv2.IMREAD_UNCHANGED)
+        if image is None:
+            raise InputError(f"cannot read image {files[index]}")
+        if image.ndim != 3 or image.shape[2] != 3:
+            raise InputError(f"{files[index]}: expected a 3-channel colour image, got shape "
+                             f"{image.shape}")
+        return cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
+
+    return FrameSequence(path.name, 30.0, size, load, len(files), region=region)
+
+
+def _video(path: Path, size: tuple[int, int], region: np.ndarray | None) -> FrameSequence:
+    """Decode the whole video (at its own size) into memory."""
+    capture = cv2.VideoCapture(str(path))
+    if not capture.isOpened():
+        raise InputError(f"cannot open video {path}: unreadable or not a video")
+    fps = capture.get(cv2.CAP_PROP_FPS) or 30.0
+    frames = []
+    while True:
+        ok, frame = capture.read()
+        if not ok:
+            break
+        frames.append(cv2.cvtColor(frame, cv2.COLOR_BGR2RGB))
+    capture.release()
+    if not frames:
+        raise InputError(f"{path}: no frames could be decoded (empty or corrupt video)")
+    return FrameSequence(path.name, float(fps), size, frames.__getitem__, len(frames),
+                         region=region)

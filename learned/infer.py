@@ -1,0 +1,111 @@
+"""Depth, ego-motion and intrinsics for a video, an image folder or a simulated procedure.
+
+Writes into the output folder:
+    depth/000000.npy       float32 (H, W) depth at the network's size, over the cropped region
+    region.png             the detected image region (white) at the network's size
+    relative_poses.npy     (N-1, 4, 4) transform mapping camera t's points into camera t+1
+    poses.npy              (N, 4, 4) camera-to-world poses chained from them (first = identity)
+    intrinsics.json        one K for the whole input, in the input's own pixels, with its spread
+Depth and translation share one unknown scale.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+import torch
+from tqdm import tqdm
+
+from hybrid.types import Camera
+from learned.frames import FrameSequence
+from learned.geometry import transform_from
+from learned.model import DepthModel, to_tensor
+
+
+@dataclass
+class DepthOutput:
+    """Everything inferred for one input, at the network's size."""
+
+    depth: np.ndarray
+    """(N, H, W) float32."""
+    relative: np.ndarray
+    """(N-1, 4, 4) float64, camera t -> camera t+1."""
+    K_pairs: np.ndarray
+    """(N-1, 3, 3) per-pair intrinsics at the network's size."""
+
+    @property
+    def poses(self) -> np.ndarray:
+        """(N, 4, 4) camera-to-world poses: P[t+1] = P[t] · inverse(relative[t])."""
+        poses = [np.eye(4)]
+        for T in self.relative:
+            poses.append(poses[-1] @ np.linalg.inv(T))
+        return np.stack(poses)
+
+
+@torch.no_grad()
+def infer_sequence(model: DepthModel, seq: FrameSequence, batch: int = 16,
+                   progress: bool = False, frames: range | None = None) -> DepthOutput:
+    """Run the networks over consecutive frames of seq (all, or the given range)."""
+    model.eval()
+    frames = frames or range(seq.num_frames)
+    depth, relative, K_pairs = [], [], []
+    previous = None
+    for start in tqdm(range(frames.start, frames.stop, batch), desc=f"depth {seq.name}",
+                      disable=not progress, unit="batch"):
+        ids = range(start, min(start + batch, frames.stop))
+        images = to_tensor(np.stack([seq.frame(i) for i in ids]))
+        depth.append(model.depth(images)[:, 0].numpy())
+        chain = images if previous is None else torch.cat([previous, images])
+        if len(chain) > 1:
+            r_ab, t_ab, r_ba, t_ba, K = model.pair_motion(chain[:-1], chain[1:])
+            forward = transform_from(r_ab, t_ab).double()
+            backward = torch.linalg.inv(transform_from(r_ba, t_ba).double())
+            relative.append(_mean_transform(forward, backward).numpy())
+            K_pairs.append(K.numpy())
+        previous = images[-1:]
+    return DepthOutput(np.concatenate(depth), np.concatenate(relative),
+                       np.concatenate(K_pairs).astype(np.float64))
+
+
+def _mean_transform(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    """Average of two estimates of the same transform (rotation projected back to SO(3))."""
+    mean = 0.5 * (a + b)
+    U, _, Vt = torch.linalg.svd(mean[:, :3, :3])
+    det = torch.linalg.det(U @ Vt)
+    D = torch.diag_embed(torch.stack([torch.ones_like(det), torch.ones_like(det), det], -1))
+    mean[:, :3, :3] = U @ D @ Vt
+    return mean
+
+
+def aggregate_intrinsics(K_pairs: np.ndarray, seq: FrameSequence) -> dict:
+    """Median K over pairs in the input's pixels, with the spread (std, IQR) of each entry."""
+    height, width = seq.size
+    cams = [seq.crop.camera_to_input(Camera(width, height, K[0, 0], K[1, 1], K[0, 2], K[1, 2],
+                                            seq.fps)) for K in K_pairs]
+    table = {k: np.array([getattr(c, k) for c in cams]) for k in ("fx", "fy", "cx", "cy")}
+    out = {"width": seq.crop.input_width, "height": seq.crop.input_height, "fps": seq.fps}
+    out.update({k: float(np.median(v)) for k, v in table.items()})
+    out["spread"] = {k: {"std": float(v.std()),
+                         "iqr": float(np.subtract(*np.percentile(v, [75, 25])))}
+                     for k, v in table.items()}
+    out["pairs"] = len(cams)
+    out["crop"] = vars(seq.crop)
+    out["network_size"] = {"height": height, "width": width}
+    return out
+
+
+def write_depth_outputs(out: Path, seq: FrameSequence, result: DepthOutput) -> None:
+    """Write the files listed in the module docstring."""
+    out = Path(out)
+    (out / "depth").mkdir(parents=True, exist_ok=True)
+    for i, d in enumerate(result.depth):
+        np.save(out / "depth" / f"{i:06d}.npy", d.astype(np.float32))
+    cv2.imwrite(str(out / "region.png"), seq.region.astype(np.uint8) * 255)
+    np.save(out / "relative_poses.npy", result.relative)
+    np.save(out / "poses.npy", result.poses)
+    intrinsics = aggregate_intrinsics(result.K_pairs, seq)
+    (out / "intrinsics.json").write_text(json.dumps(intrinsics, indent=1) + "\n")

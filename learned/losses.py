@@ -1,0 +1,144 @@
+"""View-synthesis losses (paper eq. 1; Gordon et al. 2019; monodepth2).
+
+photometric (L1 + SSIM) with per-pixel minimum over sources and auto-masking,
+occlusion-aware depth consistency, rotation/translation cycle consistency, edge-aware
+smoothness. Endoscopy helps: per-pair brightness match, specular and border masks, and an
+optional inverse-square correction for the light that moves with the camera.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from kornia.losses import inverse_depth_smoothness_loss
+from kornia.metrics import ssim
+
+from learned.config import DepthConfig
+from learned.geometry import Warp, transform_from, warp
+
+_SPECULAR_THRESHOLD = 0.96
+"""A pixel whose mean RGB exceeds this is a specular highlight."""
+
+
+def photometric_error(a: torch.Tensor, b: torch.Tensor, config: DepthConfig) -> torch.Tensor:
+    """(B, 1, H, W) per-pixel w_ssim·(1 - SSIM)/2 + w_l1·L1, averaged over channels."""
+    l1 = (a - b).abs().mean(1, keepdim=True)
+    dssim = ((1 - ssim(a, b, 3)) / 2).clamp(0, 1).mean(1, keepdim=True)
+    return config.w_ssim * dssim + config.w_l1 * l1
+
+
+def match_brightness(warped: torch.Tensor, target: torch.Tensor, mask: torch.Tensor
+                     ) -> torch.Tensor:
+    """Affine per-channel map of `warped` so that its mean and std over mask match target's."""
+    weight = mask.float()
+    count = weight.sum(dim=(2, 3), keepdim=True).clamp(min=1.0)
+
+    def stats(x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        mean = (x * weight).sum(dim=(2, 3), keepdim=True) / count
+        var = (((x - mean) ** 2) * weight).sum(dim=(2, 3), keepdim=True) / count
+        return mean, var.clamp(min=1e-6).sqrt()
+
+    mean_w, std_w = stats(warped)
+    mean_t, std_t = stats(target)
+    return (warped - mean_w) * (std_t / std_w).detach() + mean_t.detach()
+
+
+def specular(image: torch.Tensor) -> torch.Tensor:
+    """(B, 1, H, W) bool mask of near-white highlights, grown by one pixel."""
+    bright = (image.mean(1, keepdim=True) > _SPECULAR_THRESHOLD).float()
+    return torch.nn.functional.max_pool2d(bright, 3, 1, 1) > 0
+
+
+@dataclass
+class LossTerms:
+    total: torch.Tensor
+    photometric: torch.Tensor
+    smoothness: torch.Tensor
+    depth_consistency: torch.Tensor
+    rotation_cycle: torch.Tensor
+    translation_cycle: torch.Tensor
+
+    def as_floats(self) -> dict[str, float]:
+        return {k: float(v.detach()) for k, v in vars(self).items()}
+
+
+def view_synthesis_loss(
+    target: torch.Tensor,
+    sources: list[torch.Tensor],
+    target_depth: torch.Tensor,
+    source_depths: list[torch.Tensor],
+    motions: list[tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]],
+    K: torch.Tensor,
+    region: torch.Tensor,
+    config: DepthConfig,
+) -> LossTerms:
+    """Loss of one batch of (target, sources) with predicted depths, motions and K.
+
+    motions[k] = (rotation, translation) target->source and (rotation, translation)
+    source->target, each (B, 3). region (B, 1, H, W) marks the endoscope's image area.
+    """
+    usable = region.bool()
+    if config.specular_mask:
+        usable = usable & ~specular(target)
+    errors, identity_errors = [], []
+    consistency, rot_cycle, trans_cycle = [], [], []
+    for source, source_depth, (r_ts, t_ts, r_st, t_st) in zip(
+            sources, source_depths, motions, strict=True):
+        T_ts = transform_from(r_ts, t_ts)
+        T_st = transform_from(r_st, t_st)
+        w = warp(source, target_depth, T_ts, K, source_depth)
+        mask = usable & w.valid
+        if config.specular_mask:
+            mask = mask & ~specular(w.image)
+        image = _relit(w, config)
+        if config.brightness_match:
+            image = match_brightness(image, target, mask)
+        error = photometric_error(image, target, config)
+        errors.append(torch.where(mask, error, torch.full_like(error, 1e3)))
+        identity_errors.append(photometric_error(source, target, config))
+        consistency.append(_depth_consistency(w, mask))
+        cycle = T_st @ T_ts
+        eye = torch.eye(3, device=cycle.device, dtype=cycle.dtype)
+        rot_cycle.append(((cycle[:, :3, :3] - eye) ** 2).mean())
+        trans_cycle.append((cycle[:, :3, 3].norm(dim=1) / (
+            t_ts.norm(dim=1) + t_st.norm(dim=1) + 1e-6)).mean())
+
+    best, _ = torch.stack(errors).min(dim=0)
+    keep = best < 1e2  # some source saw the pixel
+    if config.automask:
+        identity, _ = torch.stack(identity_errors).min(dim=0)
+        identity = identity + 1e-5 * torch.randn_like(identity)  # break ties as monodepth2
+        keep = keep & (best < identity)
+    photometric = (best * keep).sum() / keep.sum().clamp(min=1)
+    disparity = 1.0 / target_depth
+    disparity = disparity / disparity.mean(dim=(2, 3), keepdim=True)
+    smoothness = inverse_depth_smoothness_loss(disparity, target)
+    depth_consistency = torch.stack(consistency).mean()
+    rotation_cycle = torch.stack(rot_cycle).mean()
+    translation_cycle = torch.stack(trans_cycle).mean()
+    total = (photometric + config.w_smooth * smoothness
+             + config.w_depth_consistency * depth_consistency
+             + config.w_rotation_cycle * rotation_cycle
+             + config.w_translation_cycle * translation_cycle)
+    return LossTerms(total, photometric, smoothness, depth_consistency, rotation_cycle,
+                     translation_cycle)
+
+
+def _relit(w: Warp, config: DepthConfig) -> torch.Tensor:
+    """Warped source intensity, corrected for the light at the camera if configured."""
+    if not config.inverse_square:
+        return w.image
+    return w.image * (w.ray_ratio.detach() ** 2).clamp(0.25, 4.0)
+
+
+def _depth_consistency(w: Warp, mask: torch.Tensor) -> torch.Tensor:
+    """Relative depth disagreement where the target's point is not hidden in the source.
+
+    A target point in front of the source's own surface (z <= sampled depth) should lie on it;
+    a point behind it is occluded in the source and is not penalised.
+    """
+    z, d = w.depth_in_source, w.sampled_source_depth
+    visible = mask & (z <= d)
+    error = (z - d).abs() / (z + d)
+    return (error * visible).sum() / visible.sum().clamp(min=1)

@@ -1,0 +1,69 @@
+"""The depth + motion + intrinsics model: its forward pass on triplets, and loading it."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch import nn
+
+from hybrid.types import InputError
+from learned.checkpoint import load_modules, read_checkpoint
+from learned.config import DepthConfig
+from learned.losses import LossTerms, view_synthesis_loss
+from learned.nets import DepthNet, MotionNet
+
+
+class DepthModel(nn.Module):
+    """DepthNet and MotionNet together, as trained by view synthesis."""
+
+    def __init__(self, config: DepthConfig):
+        super().__init__()
+        self.config = config
+        self.depth = DepthNet(config)
+        self.motion = MotionNet(config)
+
+    def pair_motion(self, a: torch.Tensor, b: torch.Tensor
+                    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor,
+                               torch.Tensor]:
+        """Motion a->b and b->a (axis-angle, translation each), and K averaged over both orders.
+
+        a, b: (B, 3, H, W). The a->b transform maps points of camera a into camera b.
+        """
+        rotation, translation, K = self.motion(torch.cat([torch.cat([a, b], 1),
+                                                          torch.cat([b, a], 1)], 0))
+        n = a.shape[0]
+        return (rotation[:n], translation[:n], rotation[n:], translation[n:],
+                0.5 * (K[:n] + K[n:]))
+
+    def loss(self, frames: torch.Tensor, region: torch.Tensor) -> LossTerms:
+        """View-synthesis loss of triplets frames (B, 3 frames, 3, H, W): previous, target, next."""
+        batch = frames.shape[0]
+        depths = self.depth(frames.flatten(0, 1)).unflatten(0, (batch, 3))
+        target = frames[:, 1]
+        motions, intrinsics = [], []
+        for k in (0, 2):
+            r_ts, t_ts, r_st, t_st, K = self.pair_motion(target, frames[:, k])
+            motions.append((r_ts, t_ts, r_st, t_st))
+            intrinsics.append(K)
+        K = torch.stack(intrinsics).mean(0)
+        return view_synthesis_loss(target, [frames[:, 0], frames[:, 2]], depths[:, 1],
+                                   [depths[:, 0], depths[:, 2]], motions, K, region, self.config)
+
+
+def to_tensor(images: np.ndarray) -> torch.Tensor:
+    """RGB uint8 (..., H, W, 3) -> float (..., 3, H, W) in [0, 1]."""
+    return torch.from_numpy(np.ascontiguousarray(images)).movedim(-1, -3).float() / 255.0
+
+
+def load_depth_model(path: Path, preset: str | None = None) -> DepthModel:
+    """A trained model in eval mode; checks that it is of the expected preset if one is given."""
+    tensors, meta = read_checkpoint(path, kind="depth")
+    config = DepthConfig.from_dict(meta["config"])
+    if preset is not None and config.preset != preset:
+        raise InputError(f"{path} is a {config.preset!r}-preset checkpoint, but the "
+                         f"{preset!r} preset was asked for")
+    model = DepthModel(config)
+    load_modules(tensors, {"depth": model.depth, "motion": model.motion}, path)
+    return model.eval()

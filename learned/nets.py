@@ -1,0 +1,132 @@
+"""Depth U-Net with a ResNet-style encoder, and the motion + intrinsics network (Gordon et al.).
+
+Written with plain torch (torchvision does not import beside the CPU torch used here).
+"""
+
+from __future__ import annotations
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from learned.config import DepthConfig
+
+
+class BasicBlock(nn.Module):
+    """ResNet basic block: two 3x3 convolutions with a residual connection."""
+
+    def __init__(self, cin: int, cout: int, stride: int):
+        super().__init__()
+        self.conv1 = nn.Conv2d(cin, cout, 3, stride, 1, bias=False)
+        self.bn1 = nn.BatchNorm2d(cout)
+        self.conv2 = nn.Conv2d(cout, cout, 3, 1, 1, bias=False)
+        self.bn2 = nn.BatchNorm2d(cout)
+        self.shortcut = nn.Identity() if stride == 1 and cin == cout else nn.Sequential(
+            nn.Conv2d(cin, cout, 1, stride, bias=False), nn.BatchNorm2d(cout))
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        out = F.relu(self.bn1(self.conv1(x)))
+        return F.relu(self.bn2(self.conv2(out)) + self.shortcut(x))
+
+
+class ResNetEncoder(nn.Module):
+    """ResNet encoder; returns features at strides 2, 4, 8, 16, 32."""
+
+    def __init__(self, in_channels: int, channels: tuple[int, ...], blocks: tuple[int, ...]):
+        super().__init__()
+        self.stem = nn.Sequential(nn.Conv2d(in_channels, channels[0], 7, 2, 3, bias=False),
+                                  nn.BatchNorm2d(channels[0]), nn.ReLU(inplace=True))
+        stages = []
+        cin = channels[0]
+        for k, (cout, n) in enumerate(zip(channels[1:], blocks, strict=True)):
+            layers = [BasicBlock(cin, cout, 1 if k == 0 else 2)]
+            layers += [BasicBlock(cout, cout, 1) for _ in range(n - 1)]
+            stages.append(nn.Sequential(*layers))
+            cin = cout
+        self.stages = nn.ModuleList(stages)
+        self.channels = channels
+
+    def forward(self, x: torch.Tensor) -> list[torch.Tensor]:
+        features = [self.stem(x)]
+        x = F.max_pool2d(features[0], 3, 2, 1)
+        for stage in self.stages:
+            x = stage(x)
+            features.append(x)
+        return features
+
+
+def _conv(cin: int, cout: int) -> nn.Sequential:
+    return nn.Sequential(nn.ReflectionPad2d(1), nn.Conv2d(cin, cout, 3), nn.ELU(inplace=True))
+
+
+class DepthNet(nn.Module):
+    """RGB (B, 3, H, W) in [0, 1] -> depth (B, 1, H, W) in [min_depth, max_depth]."""
+
+    def __init__(self, config: DepthConfig):
+        super().__init__()
+        self.config = config
+        self.encoder = ResNetEncoder(3, config.encoder_channels, config.encoder_blocks)
+        enc = config.encoder_channels
+        dec = config.decoder_channels
+        self.up_convs = nn.ModuleList()
+        self.fuse_convs = nn.ModuleList()
+        cin = enc[-1]
+        for level in range(4, -1, -1):  # decoder levels at strides 16, 8, 4, 2, 1
+            self.up_convs.append(_conv(cin, dec[level]))
+            skip = enc[level - 1] if level > 0 else 0
+            self.fuse_convs.append(_conv(dec[level] + skip, dec[level]))
+            cin = dec[level]
+        self.head = nn.Sequential(nn.ReflectionPad2d(1), nn.Conv2d(dec[0], 1, 3))
+        self.register_buffer("mean", torch.tensor([0.45, 0.45, 0.45]).view(1, 3, 1, 1))
+
+    def forward(self, rgb: torch.Tensor) -> torch.Tensor:
+        features = self.encoder((rgb - self.mean) / 0.225)
+        x = features[-1]
+        for k, (up, fuse) in enumerate(zip(self.up_convs, self.fuse_convs, strict=True)):
+            x = F.interpolate(up(x), scale_factor=2, mode="nearest")
+            level = 4 - k
+            if level > 0:
+                x = torch.cat([x, features[level - 1]], dim=1)
+            x = fuse(x)
+        disparity = torch.sigmoid(self.head(x))
+        lo, hi = 1.0 / self.config.max_depth, 1.0 / self.config.min_depth
+        return 1.0 / (lo + (hi - lo) * disparity)
+
+
+class MotionNet(nn.Module):
+    """Two frames -> 6-DoF motion from the first camera to the second, and intrinsics.
+
+    Input: (B, 6, H, W), frames i and j stacked. Output: axis-angle rotation (B, 3) and
+    translation (B, 3) of the transform mapping points in camera i to camera j, and
+    K (B, 3, 3) in pixels of the input size.
+    """
+
+    def __init__(self, config: DepthConfig):
+        super().__init__()
+        self.encoder = ResNetEncoder(6, config.motion_channels, config.motion_blocks)
+        width = config.motion_channels[-1]
+        self.motion = nn.Conv2d(width, 6, 1)
+        self.intrinsics = nn.Conv2d(width, 4, 1)
+        # Small initial motions (Gordon et al. scale them by learned factors starting at 0.01).
+        self.rotation_scale = nn.Parameter(torch.tensor(0.01))
+        self.translation_scale = nn.Parameter(torch.tensor(0.01))
+        nn.init.zeros_(self.intrinsics.weight)
+        nn.init.zeros_(self.intrinsics.bias)
+        # softplus(-0.4) = 0.51: the focal length starts at about half the image width.
+        nn.init.constant_(self.intrinsics.bias[:2], -0.4)
+        self.register_buffer("mean", torch.tensor([0.45] * 6).view(1, 6, 1, 1))
+
+    def forward(self, pair: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        height, width = pair.shape[-2:]
+        bottleneck = self.encoder((pair - self.mean) / 0.225)[-1].mean(dim=(2, 3), keepdim=True)
+        motion = self.motion(bottleneck).flatten(1)
+        rotation = motion[:, :3] * self.rotation_scale
+        translation = motion[:, 3:] * self.translation_scale
+        raw = self.intrinsics(bottleneck).flatten(1)
+        K = torch.zeros(pair.shape[0], 3, 3, device=pair.device, dtype=pair.dtype)
+        K[:, 0, 0] = F.softplus(raw[:, 0]) * width
+        K[:, 1, 1] = F.softplus(raw[:, 1]) * height
+        K[:, 0, 2] = (raw[:, 2] + 0.5) * width - 0.5
+        K[:, 1, 2] = (raw[:, 3] + 0.5) * height - 0.5
+        K[:, 2, 2] = 1.0
+        return rotation, translation, K

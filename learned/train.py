@@ -1,0 +1,153 @@
+"""Unsupervised training of depth, ego-motion and intrinsics by view synthesis, on RGB only.
+
+Reads simulated procedures, folders of images or videos; writes into the output folder
+`checkpoint.safetensors` (weights, optimiser, step, config), `config.json` and
+`metrics.jsonl` (training losses; validation metrics where ground truth exists, which is used
+for nothing else). Rerunning with the same folder resumes from the last checkpoint.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+from tqdm import tqdm
+
+from hybrid.types import InputError
+from learned.checkpoint import load_modules, load_optimizer, read_checkpoint, save_checkpoint
+from learned.config import DepthConfig
+from learned.frames import VIDEO_SUFFIXES, FrameSequence, open_sequence
+from learned.metrics import intrinsics_error, mre
+from learned.model import DepthModel, to_tensor
+
+log = logging.getLogger(__name__)
+CHECKPOINT = "checkpoint.safetensors"
+
+
+def expand_inputs(paths: list[Path]) -> list[Path]:
+    """Each path is one input, or a folder holding simulated procedures or videos."""
+    out: list[Path] = []
+    for path in map(Path, paths):
+        if not path.exists():
+            raise InputError(f"training input not found: {path}")
+        children = sorted(path.iterdir()) if path.is_dir() else []
+        procedures = [c for c in children if (c / "camera.json").is_file() and (c / "rgb").is_dir()]
+        videos = [c for c in children if c.suffix.lower() in VIDEO_SUFFIXES]
+        out += procedures or videos or [path]
+    return out
+
+
+@dataclass
+class TripletSampler:
+    """Random (previous, target, next) frame triplets, `gap` frames apart, from sequences."""
+
+    sequences: list[FrameSequence]
+    pair_gap_s: float
+
+    def __post_init__(self) -> None:
+        self.gaps = [max(1, round(s.fps * self.pair_gap_s)) for s in self.sequences]
+        self.counts = np.array([max(0, s.num_frames - 2 * g)
+                                for s, g in zip(self.sequences, self.gaps, strict=True)])
+        if self.counts.sum() == 0:
+            raise InputError("inputs are too short: each needs more than 2 x pair gap frames")
+
+    def batch(self, size: int, rng: np.random.Generator) -> tuple[torch.Tensor, torch.Tensor]:
+        """Frames (B, 3, 3, H, W) in [0, 1] and image regions (B, 1, H, W)."""
+        picks = rng.choice(self.counts.sum(), size)
+        bounds = np.cumsum(self.counts)
+        frames, regions = [], []
+        for pick in picks:
+            k = int(np.searchsorted(bounds, pick, side="right"))
+            seq, gap = self.sequences[k], self.gaps[k]
+            t = int(pick - (bounds[k] - self.counts[k])) + gap
+            frames.append(np.stack([seq.frame(t - gap), seq.frame(t), seq.frame(t + gap)]))
+            regions.append(seq.region)
+        return to_tensor(np.stack(frames)), torch.from_numpy(np.stack(regions))[:, None]
+
+
+def validate(model: DepthModel, sequences: list[FrameSequence], frames_per_sequence: int = 8
+             ) -> dict[str, float]:
+    """Median MRE over sampled frames and focal errors, on sequences with ground truth."""
+    errors, focal = [], []
+    model.eval()
+    with torch.no_grad():
+        for seq in sequences:
+            gap = max(1, round(seq.fps * model.config.pair_gap_s))
+            picks = np.linspace(gap, seq.num_frames - 1, frames_per_sequence).round().astype(int)
+            images = to_tensor(np.stack([seq.frame(t) for t in picks]))
+            depth = model.depth(images)[:, 0].numpy()
+            errors += [mre(d, seq.depth(t), seq.region) for d, t in zip(depth, picks, strict=True)]
+            previous = to_tensor(np.stack([seq.frame(t - gap) for t in picks]))
+            K = model.pair_motion(previous, images)[-1].mean(0).numpy()
+            err = intrinsics_error(K, seq.camera.K)
+            focal.append(0.5 * (err["fx_rel"] + err["fy_rel"]))
+    model.train()
+    return {"val_mre": float(np.median(errors)), "val_focal_rel": float(np.mean(focal))}
+
+
+def train_depth(data: list[Path], out: Path, config: DepthConfig, val: list[Path] = (),
+                log_every: int = 50, val_every: int = 500, save_every: int = 250,
+                progress: bool = True) -> Path:
+    """Train (or resume) and return the checkpoint path."""
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    size = (config.height, config.width)
+    sampler = TripletSampler([open_sequence(p, size) for p in expand_inputs(data)],
+                             config.pair_gap_s)
+    val_sequences = [s for s in (open_sequence(p, size) for p in expand_inputs(list(val)))
+                     if s.camera is not None]
+    torch.manual_seed(config.seed)
+    model = DepthModel(config)
+    optimizer = torch.optim.Adam(model.parameters(), lr=config.learning_rate)
+    path = out / CHECKPOINT
+    step = 0
+    if path.is_file():
+        tensors, meta = read_checkpoint(path)
+        if meta["config"]["preset"] != config.preset:
+            raise InputError(f"{path} holds a {meta['config']['preset']!r} run; use another "
+                             f"--out for the {config.preset!r} preset")
+        load_modules(tensors, {"depth": model.depth, "motion": model.motion}, path)
+        load_optimizer(tensors, meta, optimizer)
+        step = meta["step"]
+        log.info("resuming %s at step %d", path, step)
+    (out / "config.json").write_text(json.dumps(config.to_dict(), indent=1) + "\n")
+    metrics_log = (out / "metrics.jsonl").open("a")
+    model.train()
+    running: dict[str, float] = {}
+    started = time.time()
+    bar = tqdm(total=config.steps, initial=step, desc="train-depth", unit="step",
+               disable=not progress)
+    while step < config.steps:
+        rng = np.random.default_rng([config.seed, step])  # resumable sampling
+        frames, region = sampler.batch(config.batch_size, rng)
+        terms = model.loss(frames, region)
+        optimizer.zero_grad()
+        terms.total.backward()
+        torch.nn.utils.clip_grad_norm_(model.parameters(), config.grad_clip)
+        optimizer.step()
+        step += 1
+        bar.update(1)
+        for k, v in terms.as_floats().items():
+            running[k] = running.get(k, 0.0) + v
+        record: dict[str, float] = {}
+        if step % log_every == 0:
+            record = {k: v / log_every for k, v in running.items()}
+            running = {}
+            bar.set_postfix(loss=f"{record['total']:.4f}")
+        if val_sequences and (step % val_every == 0 or step == config.steps):
+            record.update(validate(model, val_sequences))
+        if record:
+            record.update(step=step, seconds=round(time.time() - started, 1))
+            metrics_log.write(json.dumps(record) + "\n")
+            metrics_log.flush()
+        if step % save_every == 0 or step == config.steps:
+            save_checkpoint(path, {"depth": model.depth, "motion": model.motion},
+                            config.to_dict(), step, optimizer)
+    bar.close()
+    metrics_log.close()
+    return path

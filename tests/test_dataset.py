@@ -1,0 +1,102 @@
+"""Dataset format (hybrid.dataset): the loader reads back exactly what the simulator made."""
+
+from __future__ import annotations
+
+import shutil
+
+import numpy as np
+import pytest
+
+from hybrid.coverage import Lumen, compute_coverage
+from hybrid.dataset import DEPTH_UNIT_CM, Procedure, list_procedures, read_depth, write_depth
+from hybrid.sim.appearance import get_style, make_texture
+from hybrid.sim.colon import make_colon
+from hybrid.sim.render import ColonRenderer
+from hybrid.sim.simulate import draw_camera
+from hybrid.sim.trajectory import make_withdrawal
+from hybrid.types import InputError
+
+
+@pytest.fixture(scope="module")
+def regenerated(sim_config):
+    """The simulator's in-memory colon, camera, poses and renderer for seed 7, index 0, drawn
+    in the same order as simulate_procedure."""
+    rng = np.random.default_rng([7, 0])
+    colon = make_colon(sim_config.colon, rng)
+    camera = draw_camera(sim_config, rng)
+    poses = make_withdrawal(colon, sim_config.trajectory, rng)
+    style = get_style(sim_config.style)
+    circumference = 2 * np.pi * float(np.mean(sim_config.colon.radius_range_cm))
+    texture = make_texture(sim_config.colon.length_cm, circumference, style, rng)
+    renderer = ColonRenderer(colon, texture, style, camera, circumference)
+    return colon, camera, poses, renderer, rng
+
+
+def test_loader_round_trip(simulated, regenerated):
+    colon, camera, poses, renderer, rng = regenerated
+    proc = Procedure.open(simulated)
+    assert proc.num_frames == len(poses) == 40
+    assert proc.camera == camera
+    np.testing.assert_array_equal(proc.poses, poses)
+    np.testing.assert_array_equal(proc.lumen, colon.centerline)
+    mesh = proc.mesh()
+    # colon.ply stores float32 coordinates (trimesh's PLY writer); coverage.json is computed
+    # from the file, so it is these coordinates that count.
+    np.testing.assert_array_equal(mesh.vertices, colon.vertices.astype(np.float32))
+    np.testing.assert_array_equal(mesh.triangles, colon.triangles)
+
+    # Frame 0 is rendered with the generator as it stands after the texture: same image.
+    rgb0, _ = renderer.render(poses[0], rng)
+    loaded = proc.rgb(0)
+    assert loaded.dtype == np.uint8 and loaded.shape == (camera.height, camera.width, 3)
+    np.testing.assert_array_equal(loaded, rgb0)
+
+    # Depth does not depend on the generator. Stored in steps of DEPTH_UNIT_CM, rounded:
+    # off by at most half a step (plus float32 rounding of values up to ~30 cm, < 1e-5 cm).
+    for i in (0, 17, 39):
+        _, depth = renderer.render(poses[i], np.random.default_rng(0))
+        got = proc.depth(i)
+        assert got.dtype == np.float32 and got.shape == (camera.height, camera.width)
+        assert (depth > 0).mean() > 0.5  # the comparison covers most of the image
+        np.testing.assert_array_equal(got == 0, depth == 0)
+        assert np.abs(got - depth).max() <= DEPTH_UNIT_CM / 2 + 1e-5
+
+
+def test_stored_coverage_equals_recomputed(simulated, sim_config):
+    proc = Procedure.open(simulated)
+    recomputed = compute_coverage(proc.mesh(), Lumen(proc.lumen), proc.poses, proc.camera,
+                                  segment_frames=sim_config.segment_frames)
+    stored = proc.coverage
+    assert stored.to_json() == recomputed.to_json()
+    assert len(stored.segments) == 2
+    labels = stored.segment_labels()
+    assert labels.shape == (2,) and np.all((labels >= 0) & (labels <= 1))
+    assert stored.default_pair == (1.0, 4.0)
+
+
+def test_list_procedures(simulated, tmp_path):
+    found = list_procedures(simulated.parent)
+    assert [p.path for p in found] == [simulated]
+    with pytest.raises(InputError, match="no simulated procedures"):
+        list_procedures(tmp_path)
+
+
+def test_open_names_the_missing_file(simulated, tmp_path):
+    copy = tmp_path / "proc"
+    shutil.copytree(simulated, copy)
+    (copy / "lumen.npy").unlink()
+    with pytest.raises(InputError, match="lumen.npy"):
+        Procedure.open(copy)
+    with pytest.raises(InputError, match="not found"):
+        Procedure.open(tmp_path / "nothing")
+
+
+def test_depth_png_quantisation(tmp_path):
+    depth = np.array([[0.0, 0.001, 0.0031, 12.345678], [65535 * DEPTH_UNIT_CM, 200.0, 1.0, 0.5]],
+                     dtype=np.float32)
+    write_depth(tmp_path / "d.png", depth)
+    back = read_depth(tmp_path / "d.png")
+    # Rounded to the nearest step (0.001 is exactly half a step: numpy rounds half to even,
+    # i.e. to 0); beyond the 16-bit range the value saturates.
+    expected = np.array([[0.0, 0.0, 0.004, 12.346], [131.07, 131.07, 1.0, 0.5]])
+    np.testing.assert_allclose(back, expected, atol=1e-5)

@@ -1,0 +1,155 @@
+"""Simulator (hybrid.sim): determinism by seed, colon and camera draws, analytic depth."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+from conftest import make_cylinder
+
+from hybrid.coverage import Lumen
+from hybrid.sim.appearance import TEXELS_PER_CM, get_style
+from hybrid.sim.colon import Colon, ColonConfig, make_colon
+from hybrid.sim.render import ColonRenderer
+from hybrid.sim.simulate import SimConfig, draw_camera, simulate_procedure
+from hybrid.sim.trajectory import TrajectoryConfig, make_withdrawal
+from hybrid.types import Camera, check_poses
+
+
+def tree_bytes(root: Path) -> dict[str, bytes]:
+    return {str(p.relative_to(root)): p.read_bytes() for p in sorted(root.rglob("*"))
+            if p.is_file()}
+
+
+@pytest.fixture(scope="module")
+def same_seed_again(tmp_path_factory, sim_config) -> Path:
+    return simulate_procedure(tmp_path_factory.mktemp("sim_b"), 7, 0, sim_config)
+
+
+def test_same_seed_gives_byte_identical_files(simulated, same_seed_again, sim_config):
+    a, b = tree_bytes(simulated), tree_bytes(same_seed_again)
+    n = sim_config.trajectory.max_frames
+    expected = {"camera.json", "poses.npy", "colon.ply", "lumen.npy", "coverage.json",
+                "meta.json"} | {f"{kind}/{i:06d}.png" for kind in ("rgb", "depth")
+                                for i in range(n)}
+    assert set(a) == expected
+    assert set(b) == expected
+    different = [name for name in a if a[name] != b[name]]
+    assert different == []
+    assert not simulated.with_name(simulated.name + ".partial").exists()
+
+
+def test_different_seed_differs(tmp_path, simulated, sim_config):
+    other = simulate_procedure(tmp_path, 8, 0, sim_config)
+    a, b = tree_bytes(simulated), tree_bytes(other)
+    for name in ("poses.npy", "colon.ply", "lumen.npy", "camera.json", "coverage.json",
+                 "rgb/000000.png", "depth/000000.png"):
+        assert a[name] != b[name], name
+    # The index is part of the seed too.
+    third = simulate_procedure(tmp_path, 7, 1, sim_config)
+    assert tree_bytes(third)["poses.npy"] != a["poses.npy"]
+
+
+def test_complete_procedure_is_skipped(tmp_path, simulated, sim_config):
+    copy = tmp_path / simulated.name
+    shutil.copytree(simulated, copy)
+    marker = '{"marker": true}\n'
+    (copy / "coverage.json").write_text(marker)
+    assert simulate_procedure(tmp_path, 7, 0, sim_config) == copy
+    assert (copy / "coverage.json").read_text() == marker
+
+
+def test_meta_records_seed_and_config(simulated, sim_config):
+    meta = json.loads((simulated / "meta.json").read_text())
+    assert (meta["seed"], meta["index"], meta["num_frames"]) == (7, 0, 40)
+    assert meta["config"]["colon"]["length_cm"] == 14.0
+    assert meta["config"]["trajectory"]["max_frames"] == 40
+    assert meta["config"]["segment_frames"] == sim_config.segment_frames
+
+
+def test_colon_lumen_length_and_folds():
+    config = ColonConfig(length_cm=16.0)
+    colon = make_colon(config, np.random.default_rng(1))
+    # The centerline is integrated from unit steps: its arc length is the configured length.
+    assert colon.arclength[-1] == pytest.approx(16.0, rel=1e-9)
+    assert colon.centerline.shape == (161, 3)
+    lo, hi = config.radius_range_cm
+    assert lo <= colon.radius.min() and colon.radius.max() <= hi
+    assert colon.fold_depth.min() >= 0.0 and colon.fold_depth.max() <= config.fold_height_cm[1]
+    # Folds only move the wall inwards, by exactly fold_depth (ring-major vertices, then cap).
+    S = config.segments_around
+    wall = colon.vertices[:-1].reshape(-1, S, 3)
+    distance = np.linalg.norm(wall - colon.centerline[:, None], axis=2)
+    np.testing.assert_allclose(distance, colon.radius[:, None] - colon.fold_depth, atol=1e-9)
+    # The cap centre closes the cecum end.
+    np.testing.assert_array_equal(colon.vertices[-1], colon.centerline[-1])
+
+
+def test_withdrawal_moves_back_inside_the_lumen():
+    colon = make_colon(ColonConfig(length_cm=20.0), np.random.default_rng(2))
+    config = TrajectoryConfig(max_frames=200)
+    poses = check_poses(make_withdrawal(colon, config, np.random.default_rng(3)))
+    assert poses.shape == (200, 4, 4)
+    ell, nearest = Lumen(colon.centerline).project(poses[:, :3, 3])
+    # Starts start_depth_cm from the cecum end; the offset camera's ℓ* is within the lumen
+    # resampling (0.01 cm) plus the frame interpolation between rings 0.1 cm apart (the
+    # lateral offset <= 0.35 * 3.5 cm turned by <= 0.1 cm / 8 cm bend radius: 0.015 cm).
+    assert ell[0] == pytest.approx(20.0 - config.start_depth_cm, abs=0.01 + 0.015)
+    assert ell[-1] < ell[0]
+    # The camera is at most lateral_fraction * radius from a point of the centerline polyline;
+    # the lumen's samples along it are 0.02 cm apart, so the nearest is <= 0.01 cm further.
+    lateral = np.linalg.norm(poses[:, :3, 3] - nearest, axis=1)
+    assert lateral.max() <= config.lateral_fraction * colon.radius.max() + 0.01 + 1e-9
+
+
+def test_camera_draw_within_configured_lens():
+    config = SimConfig()
+    for seed in range(5):
+        camera = draw_camera(config, np.random.default_rng(seed))
+        hfov = np.degrees(2 * np.arctan(camera.width / 2 / camera.fx))
+        assert (camera.height, camera.width) == (128, 160)
+        assert config.hfov_deg[0] <= hfov <= config.hfov_deg[1]
+        assert abs(camera.fy / camera.fx - 1) <= config.aspect_jitter
+        assert abs(camera.cx - 79.5) <= config.principal_jitter * 160
+        assert abs(camera.cy - 63.5) <= config.principal_jitter * 128
+
+
+def test_rendered_depth_of_a_straight_tube_is_analytic():
+    """Camera on the axis of an open tube looking along it: the ray through pixel (u, v) with
+    direction (a, b, 1) meets the wall at z-depth R / sqrt(a² + b²), or leaves the tube."""
+    tube = make_cylinder(radius=2.0, length=10.0, spacing=0.1, segments=256)
+    n_rings = int(round(tube.length / tube.spacing)) + 1
+    z = np.linspace(0.0, tube.length, n_rings)
+    theta = np.linspace(0.0, 2 * np.pi, tube.segments, endpoint=False)
+    frames = np.tile(np.array([[0.0, 1, 0], [0, 0, 1], [1, 0, 0]]), (n_rings, 1, 1))
+    uv = np.stack(np.broadcast_arrays(z[:, None], theta[None, :] * tube.radius), -1)
+    colon = Colon(centerline=np.stack([0 * z, 0 * z, z], 1), radius=np.full(n_rings, 2.0),
+                  frames=frames, vertices=tube.vertices, triangles=tube.triangles.astype(np.int32),
+                  surface_uv=uv.reshape(-1, 2), fold_depth=np.zeros((n_rings, tube.segments)))
+    circumference = 2 * np.pi * tube.radius
+    texture = np.full((int(tube.length * TEXELS_PER_CM) + 2,
+                       int(circumference * TEXELS_PER_CM), 3), 0.5, np.float32)
+    camera = Camera(160, 128, 60.0, 62.0, 83.2, 60.7)
+    renderer = ColonRenderer(colon, texture, get_style("pink"), camera, circumference)
+    start = 3.0
+    pose = np.eye(4)
+    pose[2, 3] = start
+    rgb, depth = renderer.render(pose, np.random.default_rng(0))
+    assert rgb.shape == (128, 160, 3) and rgb.dtype == np.uint8
+    u, v = np.meshgrid(np.arange(160), np.arange(128))
+    r = np.hypot((u - camera.cx) / camera.fx, (v - camera.cy) / camera.fy)
+    expected = tube.radius / r
+    # The mesh is the inscribed 256-gon: its wall is between R cos(π/S) and R from the axis.
+    # Float32 ray casting adds ~1e-6 relative.
+    rel = 1 - np.cos(np.pi / tube.segments) + 1e-5
+    far = tube.length - start
+    hits = expected < far * (1 - rel)
+    misses = expected > far * (1 + rel)
+    assert hits.mean() > 0.5 and misses.any()
+    np.testing.assert_allclose(depth[hits], expected[hits], rtol=rel)
+    assert (depth[misses] == 0).all()
+    # Nothing hit, nothing lit: the open end is black apart from sensor noise.
+    assert rgb[misses].mean() < rgb[hits].mean()
