@@ -14,7 +14,9 @@ Process CPU time / wall time is printed as "cpu" (1.0 = one core busy, 2.0 = bot
 
 With --memory-frames N1 N2 ..., it also simulates procedures of N frames each in a fresh
 process (fast preset, slow withdrawal so that the colon is long enough) and prints the peak
-resident set (ru_maxrss) and the end-to-end rate. 18000 frames is a 10-minute procedure.
+resident set of that process (VmHWM in /proc/self/status; not ru_maxrss, which Linux carries
+over from the parent through fork and exec) and the end-to-end rate. 18000 frames is a
+10-minute procedure. Linux only.
 
 Run from the repository root:
 
@@ -29,7 +31,6 @@ import argparse
 import cProfile
 import io
 import pstats
-import resource
 import tempfile
 import time
 from concurrent.futures import ProcessPoolExecutor
@@ -135,7 +136,10 @@ def simulate_long(frames: int, seed: int) -> tuple[int, float, float]:
         folder = simulate_procedure(Path(tmp), seed, 0, config)
         wall = time.perf_counter() - start
         written = len(list((folder / "rgb").iterdir()))
-    return written, wall, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    status = Path("/proc/self/status").read_text()
+    peak_kib = next(int(line.split()[1]) for line in status.splitlines()
+                    if line.startswith("VmHWM:"))
+    return written, wall, peak_kib / 1024
 
 
 def bench_memory(lengths: list[int], seed: int) -> None:

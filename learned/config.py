@@ -29,7 +29,7 @@ class DepthConfig:
     """Smallest depth the network can output (its scale is arbitrary)."""
     max_depth: float = 100.0
     """Largest depth the network can output."""
-    pair_gap_s: float = 0.2
+    pair_gap_s: float = 0.3
     """Time between the target frame and each source frame."""
     batch_size: int = 8
     """Triplets per step."""

@@ -44,7 +44,7 @@ def evaluate_sequence(model: DepthModel, seq: FrameSequence, depth_frames: int =
         per_frame.append(row)
     metrics = {k: float(np.mean([r[k] for r in per_frame])) for k in per_frame[0]}
     K = np.median(result.K_pairs, axis=0)
-    metrics.update(intrinsics_error(K, seq.camera.K))
+    metrics.update(intrinsics_error(K, seq.camera.K, seq.camera.width, seq.camera.height))
     metrics["fx_pred"], metrics["fx_true"] = float(K[0, 0]), float(seq.camera.fx)
     metrics.update(trajectory_errors(result.poses, seq.poses[window.start:window.stop]))
     return metrics

@@ -124,7 +124,7 @@ def _simulated(path: Path, size: tuple[int, int]) -> FrameSequence:
 
     proc = Procedure.open(path)
     region = np.ones((proc.camera.height, proc.camera.width), dtype=bool)
-    return FrameSequence(path.name, proc.camera.fps, size, proc.rgb, proc.num_frames,
+    return FrameSequence(str(path), proc.camera.fps, size, proc.rgb, proc.num_frames,
                          region=region, camera=proc.camera, depth_loader=proc.depth,
                          poses=proc.poses)
 
@@ -144,7 +144,7 @@ def _image_folder(path: Path, size: tuple[int, int], region: np.ndarray | None
                              f"{image.shape}")
         return cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
 
-    return FrameSequence(path.name, 30.0, size, load, len(files), region=region)
+    return FrameSequence(str(path), 30.0, size, load, len(files), region=region)
 
 
 def _video(path: Path, size: tuple[int, int], region: np.ndarray | None) -> FrameSequence:
@@ -162,5 +162,5 @@ def _video(path: Path, size: tuple[int, int], region: np.ndarray | None) -> Fram
     capture.release()
     if not frames:
         raise InputError(f"{path}: no frames could be decoded (empty or corrupt video)")
-    return FrameSequence(path.name, float(fps), size, frames.__getitem__, len(frames),
+    return FrameSequence(str(path), float(fps), size, frames.__getitem__, len(frames),
                          region=region)

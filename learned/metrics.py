@@ -84,9 +84,13 @@ def dom(pred: np.ndarray, gt: np.ndarray, mask: np.ndarray | None = None,
     """Depth order measure: fraction of sampled pixel pairs whose depth order agrees."""
     valid = _valid(pred, gt, mask)
     p, g = pred[valid], gt[valid]
+    if p.size < 2:
+        raise ValueError("depth order needs at least 2 valid pixels")
     rng = np.random.default_rng(seed)
-    i, j = rng.integers(0, p.size, (2, pairs))
-    return float(np.mean((g[i] > g[j]) == (p[i] > p[j])))
+    i = rng.integers(0, p.size, pairs)
+    j = (i + rng.integers(1, p.size, pairs)) % p.size  # never a pixel with itself
+    keep = g[i] != g[j]  # ties in the ground truth have no order
+    return float(np.mean(np.sign(g[i] - g[j])[keep] == np.sign(p[i] - p[j])[keep]))
 
 
 def median_scaled_metrics(pred: np.ndarray, gt: np.ndarray, mask: np.ndarray | None = None
@@ -107,9 +111,9 @@ def median_scaled_metrics(pred: np.ndarray, gt: np.ndarray, mask: np.ndarray | N
     }
 
 
-def intrinsics_error(K_pred: np.ndarray, K_true: np.ndarray) -> dict[str, float]:
+def intrinsics_error(K_pred: np.ndarray, K_true: np.ndarray, width: int, height: int
+                     ) -> dict[str, float]:
     """Relative errors of fx, fy (by the focal length) and cx, cy (by the image size)."""
-    width, height = 2 * (K_true[0, 2] + 0.5), 2 * (K_true[1, 2] + 0.5)
     return {
         "fx_rel": float(abs(K_pred[0, 0] - K_true[0, 0]) / K_true[0, 0]),
         "fy_rel": float(abs(K_pred[1, 1] - K_true[1, 1]) / K_true[1, 1]),

@@ -83,11 +83,11 @@ class DepthNet(nn.Module):
         features = self.encoder((rgb - self.mean) / 0.225)
         x = features[-1]
         for k, (up, fuse) in enumerate(zip(self.up_convs, self.fuse_convs, strict=True)):
-            x = F.interpolate(up(x), scale_factor=2, mode="nearest")
             level = 4 - k
-            if level > 0:
-                x = torch.cat([x, features[level - 1]], dim=1)
-            x = fuse(x)
+            skip = features[level - 1] if level > 0 else None
+            size = rgb.shape[-2:] if skip is None else skip.shape[-2:]  # any input size
+            x = F.interpolate(up(x), size=size, mode="nearest")
+            x = fuse(x if skip is None else torch.cat([x, skip], dim=1))
         disparity = torch.sigmoid(self.head(x))
         lo, hi = 1.0 / self.config.max_depth, 1.0 / self.config.min_depth
         return 1.0 / (lo + (hi - lo) * disparity)

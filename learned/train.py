@@ -84,7 +84,7 @@ def validate(model: DepthModel, sequences: list[FrameSequence], frames_per_seque
             errors += [mre(d, seq.depth(t), seq.region) for d, t in zip(depth, picks, strict=True)]
             previous = to_tensor(np.stack([seq.frame(t - gap) for t in picks]))
             K = model.pair_motion(previous, images)[-1].mean(0).numpy()
-            err = intrinsics_error(K, seq.camera.K)
+            err = intrinsics_error(K, seq.camera.K, seq.camera.width, seq.camera.height)
             focal.append(0.5 * (err["fx_rel"] + err["fy_rel"]))
     model.train()
     return {"val_mre": float(np.median(errors)), "val_focal_rel": float(np.mean(focal))}
@@ -124,6 +124,7 @@ def train_depth(data: list[Path], out: Path, config: DepthConfig, val: list[Path
                disable=not progress)
     while step < config.steps:
         rng = np.random.default_rng([config.seed, step])  # resumable sampling
+        torch.manual_seed(config.seed * 1_000_003 + step)  # and resumable noise in the loss
         frames, region = sampler.batch(config.batch_size, rng)
         terms = model.loss(frames, region)
         optimizer.zero_grad()

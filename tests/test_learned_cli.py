@@ -1,0 +1,266 @@
+"""The depth commands of the CLI (`depth`, `eval-depth`, `train-depth`) on bad input, loading
+checkpoints of the wrong preset or shape, and the input side of learned.frames: the detected
+image region and the crop that maps intrinsics back to the input's pixels."""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import replace
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+import torch
+from typer.testing import CliRunner
+
+from hybrid.cli import app
+from hybrid.types import Camera, InputError
+from learned.checkpoint import save_checkpoint
+from learned.config import DEPTH_PRESETS
+from learned.frames import detect_region, open_sequence
+from learned.model import DepthModel, load_depth_model
+
+runner = CliRunner()
+
+TINY = replace(DEPTH_PRESETS["fast"], height=64, width=96,
+               encoder_channels=(8, 8, 16, 16, 32), decoder_channels=(8, 8, 8, 16, 16),
+               motion_channels=(8, 8, 16, 16, 32))
+"""A fast-preset config with small networks (its preset name stays 'fast')."""
+
+
+@pytest.fixture(autouse=True)
+def one_thread():
+    previous = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(previous)
+
+
+def save_model(path: Path, model: DepthModel, config: dict) -> Path:
+    save_checkpoint(path, {"depth": model.depth, "motion": model.motion}, config, step=0)
+    return path
+
+
+@pytest.fixture(scope="module")
+def tiny_checkpoint(tmp_path_factory) -> Path:
+    torch.manual_seed(0)
+    return save_model(tmp_path_factory.mktemp("ckpt") / "tiny.safetensors", DepthModel(TINY),
+                      TINY.to_dict())
+
+
+def disc_frame(height: int = 100, width: int = 120, centre=(64, 47), radius: int = 38,
+               seed: int = 0) -> np.ndarray:
+    """RGB uint8: a textured bright disc (grey ≥ 60) with a dark lumen inside it, a black
+    border, and a small bright overlay in a corner (like burnt-in text)."""
+    rng = np.random.default_rng(seed)
+    y, x = np.mgrid[:height, :width]
+    frame = np.zeros((height, width, 3), np.uint8)
+    inside = (x - centre[0]) ** 2 + (y - centre[1]) ** 2 <= radius**2
+    frame[inside] = rng.integers(60, 230, (int(inside.sum()), 3))
+    lumen = (x - centre[0] - 8) ** 2 + (y - centre[1] + 5) ** 2 <= 7**2
+    frame[lumen] = 5
+    frame[2:5, 2:14] = 255
+    return frame
+
+
+def write_images(folder: Path, frames: list[np.ndarray]) -> Path:
+    folder.mkdir(parents=True, exist_ok=True)
+    for i, frame in enumerate(frames):
+        channels = frame.shape[2]
+        code = cv2.COLOR_RGB2BGR if channels == 3 else cv2.COLOR_RGBA2BGRA
+        assert cv2.imwrite(str(folder / f"frame_{i:03d}.png"), cv2.cvtColor(frame, code))
+    return folder
+
+
+def run_depth(source: Path, out: Path, checkpoint: Path, *extra: str):
+    return runner.invoke(app, ["depth", str(source), "--out", str(out),
+                               "--checkpoint", str(checkpoint), *extra])
+
+
+def assert_clean_error(result, *names: str) -> str:
+    """Non-zero exit, one 'error:' message (no traceback) naming each of `names`."""
+    assert result.exit_code != 0, result.output
+    message = result.stderr
+    assert message.startswith("error: "), result.output
+    assert "Traceback" not in result.output
+    for name in names:
+        assert name in message, message
+    return message
+
+
+# --- image region and crop -----------------------------------------------------------------
+
+def test_detect_region_is_the_disc_minus_a_thin_rim():
+    """Erosion by a 5x5 square keeps a pixel iff its 25 neighbours are all in the disc: every
+    pixel within r − 2√2 of the centre stays, and a kept pixel p at distance d has an axis
+    neighbour 2 px further out along (at least) 45° of the radius, at distance
+    ≥ √(d² + 2√2·d + 4) > d + √2, so d < r − √2. The dark lumen is filled; the overlay in the
+    corner (a separate, smaller component) is dropped."""
+    centre, radius = (64, 47), 38
+    frames = [disc_frame(seed=s) for s in range(3)]
+    region = detect_region(frames)
+    y, x = np.mgrid[:100, :120]
+    distance = np.hypot(x - centre[0], y - centre[1])
+    assert region.shape == (100, 120) and region.dtype == bool
+    assert region[distance <= radius - 2 * math.sqrt(2)].all()
+    assert not region[distance >= radius - math.sqrt(2)].any()
+    assert not region[:10, :20].any()  # the overlay
+
+
+def test_detect_region_of_black_frames_is_an_input_error():
+    with pytest.raises(InputError, match="black"):
+        detect_region([np.full((20, 30, 3), 10, np.uint8)] * 2)
+
+
+def test_crop_maps_network_intrinsics_back_to_the_input(tmp_path):
+    folder = write_images(tmp_path / "frames", [disc_frame(seed=s) for s in range(3)])
+    seq = open_sequence(folder, (64, 96))
+    region = detect_region([disc_frame(seed=s) for s in range(3)])
+    ys, xs = np.nonzero(region)
+    crop = seq.crop
+    assert (crop.x0, crop.y0) == (xs.min(), ys.min())
+    assert (crop.width, crop.height) == (xs.max() - xs.min() + 1, ys.max() - ys.min() + 1)
+    assert (crop.input_width, crop.input_height) == (120, 100)
+    assert seq.region.shape == (64, 96) and seq.frame(0).shape == (64, 96, 3)
+
+    net = Camera(96, 64, 40.0, 42.0, 47.0, 30.0, fps=25.0)
+    got = crop.camera_to_input(net)
+    # By hand: the crop is resized by (w/96, h/64); pixel centres map as
+    # x_in = x0 + (u + 0.5)·w/96 − 0.5.
+    sx, sy = crop.width / 96, crop.height / 64
+    assert (got.width, got.height, got.fps) == (120, 100, 25.0)
+    assert got.fx == pytest.approx(40.0 * sx, rel=1e-12)
+    assert got.fy == pytest.approx(42.0 * sy, rel=1e-12)
+    assert got.cx == pytest.approx(crop.x0 + 47.5 * sx - 0.5, rel=1e-12)
+    assert got.cy == pytest.approx(crop.y0 + 30.5 * sy - 0.5, rel=1e-12)
+    # A 3-D point projects, in the input, where its network pixel maps to.
+    point = np.array([0.3, -0.2, 2.0])
+    u, v = (net.K @ point)[:2] / point[2]
+    x_in, y_in = (got.K @ point)[:2] / point[2]
+    assert x_in == pytest.approx(crop.x0 + (u + 0.5) * sx - 0.5, rel=1e-12)
+    assert y_in == pytest.approx(crop.y0 + (v + 0.5) * sy - 0.5, rel=1e-12)
+
+
+# --- `c2d2 depth` --------------------------------------------------------------------------
+
+def test_depth_runs_on_a_folder_of_images(tmp_path, tiny_checkpoint):
+    """Control for the bad-input cases below: the same checkpoint on good input works."""
+    folder = write_images(tmp_path / "good", [disc_frame(seed=s) for s in range(3)])
+    out = tmp_path / "out"
+    result = run_depth(folder, out, tiny_checkpoint)
+    assert result.exit_code == 0, result.output
+    assert sorted(p.name for p in (out / "depth").iterdir()) == [
+        "000000.npy", "000001.npy", "000002.npy"]
+    assert np.load(out / "depth" / "000000.npy").shape == (64, 96)
+    assert np.load(out / "relative_poses.npy").shape == (2, 4, 4)
+    poses = np.load(out / "poses.npy")
+    assert poses.shape == (3, 4, 4) and np.array_equal(poses[0], np.eye(4))
+    intrinsics = json.loads((out / "intrinsics.json").read_text())
+    assert (intrinsics["width"], intrinsics["height"], intrinsics["pairs"]) == (120, 100, 2)
+
+
+def test_depth_on_an_unreadable_video(tmp_path, tiny_checkpoint):
+    fake = tmp_path / "not_a_video.mp4"
+    fake.write_text("this is plain text, not an MPEG-4 file\n" * 20)
+    result = run_depth(fake, tmp_path / "out", tiny_checkpoint)
+    assert_clean_error(result, "not_a_video.mp4")
+    assert not (tmp_path / "out" / "depth").exists()
+
+
+def test_depth_on_a_folder_with_a_single_image(tmp_path, tiny_checkpoint):
+    folder = write_images(tmp_path / "lonely_frame", [disc_frame()])
+    message = assert_clean_error(run_depth(folder, tmp_path / "out", tiny_checkpoint),
+                                 "lonely_frame")
+    assert "2 frames" in message
+
+
+def test_depth_on_rgba_images(tmp_path, tiny_checkpoint):
+    rgba = [np.dstack([disc_frame(seed=s), np.full((100, 120), 255, np.uint8)])
+            for s in range(3)]
+    folder = write_images(tmp_path / "with_alpha", rgba)
+    message = assert_clean_error(run_depth(folder, tmp_path / "out", tiny_checkpoint),
+                                 "frame_000.png")
+    assert "3-channel" in message
+
+
+def test_depth_with_a_mask_of_the_wrong_size(tmp_path, tiny_checkpoint):
+    folder = write_images(tmp_path / "good", [disc_frame(seed=s) for s in range(3)])
+    mask = tmp_path / "small_mask.png"
+    cv2.imwrite(str(mask), np.full((50, 60), 255, np.uint8))
+    message = assert_clean_error(run_depth(folder, tmp_path / "out", tiny_checkpoint,
+                                           "--mask", str(mask)), "good")
+    assert "(100, 120)" in message
+
+
+def test_depth_with_a_checkpoint_that_is_not_one(tmp_path):
+    folder = write_images(tmp_path / "good", [disc_frame(seed=s) for s in range(3)])
+    bogus = tmp_path / "bogus.safetensors"
+    bogus.write_bytes(b"\x00\x01 definitely not safetensors")
+    assert_clean_error(run_depth(folder, tmp_path / "out", bogus), "bogus.safetensors")
+
+
+def mismatched_checkpoint(path: Path) -> Path:
+    """Weights of a network with other channel sizes, labelled with the TINY config."""
+    torch.manual_seed(0)
+    other = replace(TINY, encoder_channels=(8, 8, 16, 16, 40))
+    return save_model(path, DepthModel(other), TINY.to_dict())
+
+
+def test_depth_with_weights_that_do_not_fit(tmp_path):
+    folder = write_images(tmp_path / "good", [disc_frame(seed=s) for s in range(3)])
+    checkpoint = mismatched_checkpoint(tmp_path / "odd_weights.safetensors")
+    message = assert_clean_error(run_depth(folder, tmp_path / "out", checkpoint),
+                                 "odd_weights.safetensors")
+    assert "do not fit" in message
+
+
+def test_load_depth_model_rejects_weights_that_do_not_fit(tmp_path):
+    checkpoint = mismatched_checkpoint(tmp_path / "odd_weights.safetensors")
+    with pytest.raises(InputError, match="odd_weights.safetensors"):
+        load_depth_model(checkpoint)
+
+
+def test_load_depth_model_rejects_another_preset(tmp_path, tiny_checkpoint):
+    """A fast-preset checkpoint asked for as 'paper' is refused before any weight is loaded."""
+    assert load_depth_model(tiny_checkpoint, preset="fast").config == TINY
+    with pytest.raises(InputError, match="tiny.safetensors") as err:
+        load_depth_model(tiny_checkpoint, preset="paper")
+    assert "'fast'" in str(err.value) and "'paper'" in str(err.value)
+
+
+# --- `c2d2 eval-depth`, `c2d2 train-depth` -------------------------------------------------
+
+def test_eval_depth_needs_ground_truth(tmp_path, tiny_checkpoint):
+    folder = write_images(tmp_path / "real_frames", [disc_frame(seed=s) for s in range(3)])
+    result = runner.invoke(app, ["eval-depth", "--data", str(folder),
+                                 "--checkpoint", str(tiny_checkpoint)])
+    message = assert_clean_error(result, "real_frames")
+    assert "ground truth" in message
+
+
+def test_train_depth_with_an_unknown_preset(tmp_path):
+    folder = write_images(tmp_path / "frames", [disc_frame(seed=s) for s in range(3)])
+    result = runner.invoke(app, ["train-depth", "--data", str(folder), "--out",
+                                 str(tmp_path / "run"), "--preset", "huge"])
+    assert_clean_error(result, "huge", "fast", "paper")
+
+
+def test_train_depth_with_missing_input(tmp_path):
+    result = runner.invoke(app, ["train-depth", "--data", str(tmp_path / "nowhere"), "--out",
+                                 str(tmp_path / "run"), "--steps", "1"])
+    assert_clean_error(result, "nowhere")
+
+
+def test_train_depth_refuses_to_resume_another_preset(tmp_path, tiny_checkpoint):
+    """A run folder holding a 'fast' checkpoint, resumed with --preset paper."""
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "checkpoint.safetensors").write_bytes(tiny_checkpoint.read_bytes())
+    # The shortest image folder (30 fps) whose triplets fit: 2 x gap + 1 frames.
+    gap = max(1, round(30 * DEPTH_PRESETS["paper"].pair_gap_s))
+    folder = write_images(tmp_path / "frames", [disc_frame(seed=s) for s in range(2 * gap + 1)])
+    result = runner.invoke(app, ["train-depth", "--data", str(folder), "--out", str(run),
+                                 "--preset", "paper", "--steps", "1"])
+    assert_clean_error(result, "checkpoint.safetensors", "'fast'", "paper")

@@ -1,0 +1,202 @@
+"""learned.geometry: view synthesis of an analytic scene, and axis-angle transforms.
+
+The scene is a slightly tilted plane Z = Z0 + a·X + b·Y (target camera = world frame) with a
+texture made of a few sinusoids in world X, Y. Both views are rendered noise-free by per-pixel
+ray-plane intersection, so the only error of warping the source into the target with the true
+depth, pose and K is bilinear resampling of a smooth texture.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import torch
+import torch.nn.functional as F
+
+from learned.config import DepthConfig
+from learned.geometry import transform_from, warp
+from learned.losses import photometric_error
+
+H, W = 48, 64
+FX, FY, CX, CY = 50.0, 52.0, 31.7, 23.4
+Z0, A, B = 5.0, 0.1, -0.05
+"""Plane Z = Z0 + A·X + B·Y in the target camera's frame (OpenCV: x right, y down, z ahead)."""
+WAVELENGTHS = (1.6, 1.9, 2.1, 1.3, 1.7)
+"""World wavelengths of the texture's sinusoids; a pixel covers about Z/f ≈ 0.1 world units."""
+
+
+def texture(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """(3, ...) RGB in [0.1, 0.9]: sums of sinusoids in world X, Y."""
+    k = 2 * np.pi
+    r = 0.5 + 0.15 * np.sin(k * x / 1.6 + 0.3) + 0.1 * np.cos(k * y / 1.9)
+    g = 0.5 + 0.12 * np.sin(k * (x + y) / 2.1) + 0.1 * np.sin(k * y / 1.3 + 1.0)
+    b = 0.5 + 0.15 * np.cos(k * (x - 0.5 * y) / 1.7)
+    return np.stack([r, g, b])
+
+
+def rotation(axis, angle: float) -> np.ndarray:
+    """Rodrigues' formula, by hand."""
+    n = np.asarray(axis, dtype=np.float64)
+    n = n / np.linalg.norm(n)
+    k = np.array([[0, -n[2], n[1]], [n[2], 0, -n[0]], [-n[1], n[0], 0]])
+    return np.eye(3) + math.sin(angle) * k + (1 - math.cos(angle)) * k @ k
+
+
+def render(R: np.ndarray, t: np.ndarray, cx: float = CX) -> tuple[np.ndarray, np.ndarray,
+                                                                   np.ndarray]:
+    """Image (3, H, W), z-depth (H, W) and hit points (H, W, 3) in world of a camera with
+    X_cam = R·X_world + t, by intersecting each pixel's ray with the plane."""
+    u, v = np.meshgrid(np.arange(W, dtype=np.float64), np.arange(H, dtype=np.float64))
+    ray_cam = np.stack([(u - cx) / FX, (v - CY) / FY, np.ones_like(u)], axis=-1)  # z = 1
+    centre = -R.T @ t
+    ray_world = ray_cam @ R  # R^T · ray
+    normal = np.array([-A, -B, 1.0])
+    s = (Z0 - normal @ centre) / (ray_world @ normal)  # ray parameter = z-depth (ray z is 1)
+    hit = centre + s[..., None] * ray_world
+    return texture(hit[..., 0], hit[..., 1]), s, hit
+
+
+R_TRUE = rotation([0.3, 1.0, 0.2], math.radians(4.0))
+T_TRUE = np.array([0.25, -0.15, 0.4])
+"""Target -> source: X_s = R·X_t + t (source rotated 4 degrees and moved 0.5 units)."""
+
+
+def as_t(x: np.ndarray) -> torch.Tensor:
+    return torch.as_tensor(np.ascontiguousarray(x), dtype=torch.float32)
+
+
+def matrix(R: np.ndarray, t: np.ndarray) -> torch.Tensor:
+    T = torch.eye(4)[None].clone()
+    T[0, :3, :3], T[0, :3, 3] = as_t(R), as_t(t)
+    return T
+
+
+def intrinsics(scale: float = 1.0) -> torch.Tensor:
+    return as_t(np.array([[FX * scale, 0, CX], [0, FY * scale, CY], [0, 0, 1.0]]))[None]
+
+
+@pytest.fixture(scope="module")
+def scene():
+    torch.set_num_threads(1)
+    target, target_depth, hit = render(np.eye(3), np.zeros(3))
+    source, _, _ = render(R_TRUE, T_TRUE)
+    return {"target": as_t(target)[None], "depth": as_t(target_depth)[None, None],
+            "source": as_t(source)[None], "hit": hit}
+
+
+def interior(valid: torch.Tensor) -> torch.Tensor:
+    """Valid pixels whose 3x3 neighbourhood is valid too (SSIM's window sees only them)."""
+    return -F.max_pool2d(-valid.float(), 3, 1, 1) > 0
+
+
+def mean_error(scene, T: torch.Tensor, K: torch.Tensor) -> float:
+    w = warp(scene["source"], scene["depth"], T, K)
+    keep = interior(w.valid)
+    assert keep.float().mean() > 0.7  # the views overlap on most of the image
+    return float(photometric_error(w.image, scene["target"], DepthConfig())[keep].mean())
+
+
+def shift_error(scene, pixels: float) -> float:
+    """Reference: the photometric error of the target against itself rendered with the
+    principal point moved by `pixels` (a uniform misregistration)."""
+    shifted, _, _ = render(np.eye(3), np.zeros(3), cx=CX + pixels)
+    error = photometric_error(as_t(shifted)[None], scene["target"], DepthConfig())
+    return float(error[..., 1:-1, 1:-1].mean())
+
+
+def displacement(R: np.ndarray, t: np.ndarray, scale: float) -> np.ndarray:
+    """(H, W) distance in source pixels between where the target pixels project with the given
+    (R, t, focal scale) and with the true ones, using the true depth; by hand."""
+    u, v = np.meshgrid(np.arange(W, dtype=np.float64), np.arange(H, dtype=np.float64))
+    _, depth, _ = render(np.eye(3), np.zeros(3))
+
+    def project(R, t, fx, fy):
+        points = np.stack([(u - CX) / fx * depth, (v - CY) / fy * depth, depth], axis=-1)
+        m = points @ R.T + t
+        return np.stack([fx * m[..., 0] / m[..., 2] + CX, fy * m[..., 1] / m[..., 2] + CY], -1)
+
+    return np.linalg.norm(project(R, t, FX * scale, FY * scale)
+                          - project(R_TRUE, T_TRUE, FX, FY), axis=-1)
+
+
+def test_warp_with_the_true_pose_reproduces_the_target(scene):
+    w = warp(scene["source"], scene["depth"], matrix(R_TRUE, T_TRUE), intrinsics())
+    keep = interior(w.valid)
+
+    # Geometry: z of each target point in the source camera, and the ray-length ratio, equal
+    # the analytic hit points moved by (R, t). float32 arithmetic on values ~5: 1e-5 relative.
+    moved = scene["hit"] @ R_TRUE.T + T_TRUE
+    np.testing.assert_allclose(w.depth_in_source[0, 0].numpy(), moved[..., 2], rtol=1e-5)
+    ratio = np.linalg.norm(moved, axis=-1) / np.linalg.norm(scene["hit"], axis=-1)
+    np.testing.assert_allclose(w.ray_ratio[0, 0].numpy(), ratio, rtol=1e-5)
+
+    # Valid = lands inside the source image: compare with projecting the hit points by hand.
+    u = FX * moved[..., 0] / moved[..., 2] + CX
+    v = FY * moved[..., 1] / moved[..., 2] + CY
+    inside = (u >= 0) & (u <= W - 1) & (v >= 0) & (v <= H - 1)
+    margin = (np.abs(u - np.clip(u, 0, W - 1)) > 1e-3) | (np.abs(v - np.clip(v, 0, H - 1)) > 1e-3)
+    clear = inside | margin  # skip pixels within 1e-3 px of the edge (float32 rounding)
+    assert np.array_equal(w.valid[0, 0].numpy()[clear], inside[clear])
+
+    # Intensities: bilinear interpolation of f errs by at most (|f_uu| + |f_vv|)/8 per pixel.
+    # The shortest wavelength is 1.3 world units over ≤ 0.12 units per source pixel (z ≤ 6,
+    # f = 50), i.e. ≥ 10.8 px; amplitudes per channel sum to ≤ 0.25, so
+    # |f''| ≤ 0.25·(2π/10.8)² and the error ≤ 2·that/8.
+    bound = 2 * 0.25 * (2 * np.pi / 10.8) ** 2 / 8
+    assert float(moved[..., 2].max()) < 6.0
+    diff = (w.image - scene["target"]).abs()
+    assert float(diff[keep.expand_as(diff)].max()) < bound
+
+    # Photometric error: an order of magnitude below that of a half-pixel misregistration.
+    error = float(photometric_error(w.image, scene["target"], DepthConfig())[keep].mean())
+    assert error < 0.1 * shift_error(scene, 0.5)
+
+
+@pytest.mark.parametrize("case", ["fx,fy -10%", "fx,fy +10%", "translation x1.5",
+                                  "rotation +1 deg about x", "rotation +2 deg about y"])
+def test_warp_error_grows_when_pose_or_intrinsics_are_wrong(scene, case):
+    """Each perturbation misregisters the warp by at least half a pixel on average (checked by
+    projecting by hand), so its error must exceed that of a uniform quarter-pixel shift, itself
+    far above the error at the true parameters."""
+    R, t, scale = R_TRUE, T_TRUE, 1.0
+    if case.startswith("fx"):
+        scale = 0.9 if "-" in case else 1.1
+    elif case.startswith("translation"):
+        t = 1.5 * T_TRUE
+    elif case.endswith("about x"):
+        R = rotation([1, 0, 0], math.radians(1.0)) @ R_TRUE
+    else:
+        R = rotation([0, 1, 0], math.radians(2.0)) @ R_TRUE
+    assert displacement(R, t, scale).mean() > 0.5
+    true_error = mean_error(scene, matrix(R_TRUE, T_TRUE), intrinsics())
+    wrong_error = mean_error(scene, matrix(R, t), intrinsics(scale))
+    assert wrong_error > shift_error(scene, 0.25) > 5 * true_error
+
+
+@pytest.mark.parametrize("axis,angle", [((0, 0, 1), 0.3), ((1, 0, 0), -0.7),
+                                        ((0.2, -0.5, 0.8), 1.1)])
+def test_transform_from_matches_rodrigues(axis, angle):
+    n = np.asarray(axis, dtype=np.float64) / np.linalg.norm(axis)
+    translation = np.array([0.5, -1.0, 2.0])
+    T = transform_from(torch.tensor(n * angle)[None], torch.tensor(translation)[None])
+    assert T.shape == (1, 4, 4)
+    expected = np.eye(4)
+    expected[:3, :3], expected[:3, 3] = rotation(n, angle), translation
+    # float64 throughout: agreement to rounding.
+    np.testing.assert_allclose(T[0].numpy(), expected, atol=1e-12)
+    if axis == (0, 0, 1):  # the textbook matrix, written out
+        c, s = math.cos(angle), math.sin(angle)
+        np.testing.assert_allclose(T[0, :3, :3].numpy(), [[c, -s, 0], [s, c, 0], [0, 0, 1]],
+                                   atol=1e-12)
+
+
+def test_transform_from_is_batched_and_composes():
+    """Rotations about one axis compose by adding angles; T(-θ) inverts T(θ) with t = 0."""
+    r = torch.tensor([[0.0, 0.0, 0.2], [0.0, 0.0, 0.5], [0.0, 0.0, -0.2]], dtype=torch.float64)
+    T = transform_from(r, torch.zeros(3, 3, dtype=torch.float64))
+    np.testing.assert_allclose((T[0] @ T[0]).numpy(),
+                               transform_from(r[:1] * 2, torch.zeros(1, 3, dtype=torch.float64)
+                                              )[0].numpy(), atol=1e-12)
+    np.testing.assert_allclose((T[0] @ T[2]).numpy(), np.eye(4), atol=1e-12)

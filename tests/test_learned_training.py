@@ -1,0 +1,201 @@
+"""learned.nets / model / train / checkpoint: output shapes and ranges, a real loss reduction on a
+tiny simulated clip, checkpoint round trip, and resuming a run."""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import replace
+
+import numpy as np
+import pytest
+import torch
+
+from learned.checkpoint import read_checkpoint, save_checkpoint
+from learned.config import DEPTH_PRESETS, DepthConfig
+from learned.frames import open_sequence
+from learned.model import DepthModel, load_depth_model
+from learned.nets import DepthNet
+from learned.train import TripletSampler, train_depth
+
+TINY = replace(DEPTH_PRESETS["fast"], height=64, width=96, batch_size=2, learning_rate=1e-3,
+               encoder_channels=(8, 8, 16, 16, 32), decoder_channels=(8, 8, 8, 16, 16),
+               motion_channels=(8, 8, 16, 16, 32))
+"""Fast preset shrunk for tests (96 = 3·32: the U-Net halves the size five times)."""
+
+
+@pytest.fixture(autouse=True)
+def one_thread():
+    """The machine is shared: keep torch on one thread (and its results deterministic)."""
+    previous = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(previous)
+
+
+@pytest.fixture(scope="module")
+def clip(tmp_path_factory):
+    """A 30-frame simulated procedure of a 14 cm colon."""
+    from hybrid.sim.simulate import SimConfig, simulate_procedure, with_overrides
+
+    return simulate_procedure(tmp_path_factory.mktemp("clip"), 3, 0,
+                              with_overrides(SimConfig(), length_cm=14, max_frames=30))
+
+
+@pytest.fixture(scope="module")
+def batch(clip):
+    """One fixed batch of 2 triplets at 64 x 96."""
+    sampler = TripletSampler([open_sequence(clip, (TINY.height, TINY.width))], TINY.pair_gap_s)
+    return sampler.batch(TINY.batch_size, np.random.default_rng(0))
+
+
+def test_sampler_batch_shapes(batch, clip):
+    frames, region = batch
+    assert frames.shape == (2, 3, 3, 64, 96) and frames.dtype == torch.float32
+    assert region.shape == (2, 1, 64, 96) and region.dtype == torch.bool
+    assert float(frames.min()) >= 0.0 and float(frames.max()) <= 1.0
+    # Triplets are gap = round(fps · pair_gap_s) ≥ 1 frames apart, so never all equal.
+    assert not torch.equal(frames[:, 0], frames[:, 1])
+    assert not torch.equal(frames[:, 2], frames[:, 1])
+
+
+def test_depth_net_shape_and_range():
+    torch.manual_seed(0)
+    config = replace(TINY, min_depth=0.5, max_depth=2.0)
+    net = DepthNet(config).eval()
+    images = torch.cat([torch.rand(2, 3, 64, 96), torch.zeros(1, 3, 64, 96),
+                        torch.ones(1, 3, 64, 96)])
+    with torch.no_grad():
+        depth = net(images)
+    assert depth.shape == (4, 1, 64, 96)
+    assert torch.isfinite(depth).all()
+    # depth = 1/(1/max + (1/min − 1/max)·sigmoid): within [min, max] up to float32 rounding.
+    assert float(depth.min()) >= 0.5 * (1 - 1e-6) and float(depth.max()) <= 2.0 * (1 + 1e-6)
+
+
+def test_depth_net_accepts_or_rejects_a_size_not_divisible_by_32():
+    """64 x 80 (80 = 2.5 · 32): the network must either produce a (B, 1, 64, 80) depth or refuse
+    the size with a ValueError that says what sizes work, not fail inside torch.cat."""
+    config = replace(TINY, width=80)
+    try:
+        depth = DepthNet(config).eval()(torch.rand(1, 3, 64, 80))
+    except ValueError as err:
+        assert "32" in str(err)
+    else:
+        assert depth.shape == (1, 1, 64, 80)
+
+
+def test_motion_net_outputs(batch):
+    """Shapes, and K at initialisation by hand: the intrinsics head starts at zero weights, so
+    fx = softplus(−0.4)·W, fy = softplus(−0.4)·H, cx = W/2 − 0.5, cy = H/2 − 0.5."""
+    torch.manual_seed(0)
+    model = DepthModel(TINY)
+    frames, _ = batch
+    with torch.no_grad():
+        rotation, translation, K = model.motion(torch.cat([frames[:, 1], frames[:, 0]], 1))
+    assert rotation.shape == (2, 3) and translation.shape == (2, 3) and K.shape == (2, 3, 3)
+    for x in (rotation, translation, K):
+        assert torch.isfinite(x).all()
+    softplus = math.log1p(math.exp(-0.4))
+    expected = torch.tensor([[softplus * 96, 0, 47.5], [0, softplus * 64, 31.5], [0, 0, 1]])
+    torch.testing.assert_close(K, expected.expand(2, 3, 3), rtol=1e-6, atol=1e-5)
+    # Motions start small (scaled by 0.01) but are not identically zero.
+    assert 0 < float(rotation.abs().max()) < 0.1 and 0 < float(translation.abs().max()) < 0.1
+
+
+def test_pair_motion_focal_lengths_stay_positive_after_training_steps(batch):
+    torch.manual_seed(0)
+    model = DepthModel(TINY)
+    optimizer = torch.optim.Adam(model.parameters(), lr=1e-2)  # large steps on purpose
+    frames, region = batch
+    for _ in range(3):
+        optimizer.zero_grad()
+        model.loss(frames, region).total.backward()
+        optimizer.step()
+    with torch.no_grad():
+        *motions, K = model.pair_motion(frames[:, 1], frames[:, 0])
+    assert all(m.shape == (2, 3) and torch.isfinite(m).all() for m in motions)
+    assert (K[:, 0, 0] > 0).all() and (K[:, 1, 1] > 0).all()  # softplus > 0 always
+
+
+def test_optimisation_reduces_the_loss_on_a_fixed_batch(batch):
+    torch.manual_seed(0)
+    model = DepthModel(TINY)
+    frames, region = batch
+
+    def loss() -> dict[str, float]:
+        torch.manual_seed(1)  # same auto-mask tie-breaking noise for both evaluations
+        with torch.no_grad():
+            return model.loss(frames, region).as_floats()
+
+    before = loss()
+    assert all(math.isfinite(v) for v in before.values())
+    optimizer = torch.optim.Adam(model.parameters(), lr=1e-3)
+    for step in range(30):
+        torch.manual_seed(100 + step)
+        terms = model.loss(frames, region)
+        optimizer.zero_grad()
+        terms.total.backward()
+        optimizer.step()
+    after = loss()
+    assert all(math.isfinite(v) for v in after.values())
+    # Both evaluations are deterministic (same batch, same noise), so any drop is real; ask for
+    # 5%, far above the 1e-5 tie-break noise, as the sign that 30 Adam steps fit the batch.
+    assert after["total"] < 0.95 * before["total"], (before, after)
+
+
+def test_checkpoint_round_trip_gives_identical_outputs(tmp_path, batch):
+    torch.manual_seed(0)
+    model = DepthModel(TINY)
+    frames, _ = batch
+    images = frames[:, 1]
+    model.train()
+    with torch.no_grad():  # move the batch-norm running statistics off their defaults
+        model.depth(images)
+        model.motion(torch.cat([images, frames[:, 0]], 1))
+    model.eval()
+    path = tmp_path / "tiny.safetensors"
+    save_checkpoint(path, {"depth": model.depth, "motion": model.motion}, TINY.to_dict(), step=7)
+    loaded = load_depth_model(path, preset="fast")
+    assert not loaded.training
+    assert loaded.config == TINY
+    assert read_checkpoint(path)[1]["step"] == 7
+    with torch.no_grad():
+        assert torch.equal(loaded.depth(images), model.depth(images))
+        for a, b in zip(loaded.pair_motion(images, frames[:, 0]),
+                        model.pair_motion(images, frames[:, 0]), strict=True):
+            assert torch.equal(a, b)
+
+
+def test_config_dict_round_trip():
+    config = replace(TINY, preset="paper", steps=3)
+    assert DepthConfig.from_dict(json.loads(json.dumps(config.to_dict()))) == config
+
+
+def test_train_depth_resumes_where_it_stopped(tmp_path, clip):
+    """2 steps, then the same folder with steps = 4, equals 4 steps in one go, bit for bit.
+    (Auto-masking is off: its tie-breaking noise draws from torch's global RNG, whose state a
+    checkpoint does not hold.)"""
+    config = replace(TINY, steps=2, automask=False)
+    resumed, straight = tmp_path / "resumed", tmp_path / "straight"
+    path = train_depth([clip], resumed, config, log_every=1, progress=False)
+    assert path == resumed / "checkpoint.safetensors"
+    assert read_checkpoint(path)[1]["step"] == 2
+    train_depth([clip], resumed, replace(config, steps=4), log_every=1, progress=False)
+    train_depth([clip], straight, replace(config, steps=4), log_every=1, progress=False)
+
+    tensors, meta = read_checkpoint(path)
+    assert meta["step"] == 4
+    records = [json.loads(line) for line in (resumed / "metrics.jsonl").read_text().splitlines()]
+    assert [r["step"] for r in records] == [1, 2, 3, 4]
+    assert json.loads((resumed / "config.json").read_text())["steps"] == 4
+    # Adam's per-parameter step counters continued from the checkpoint (4, not 2).
+    counters = [v for k, v in tensors.items() if k.startswith("optimizer.") and k.endswith(".step")]
+    assert counters and all(float(c) == 4 for c in counters)
+
+    reference, _ = read_checkpoint(straight / "checkpoint.safetensors")
+    assert tensors.keys() == reference.keys()
+    assert all(torch.equal(tensors[k], reference[k]) for k in tensors)
+    straight_records = [json.loads(line)
+                        for line in (straight / "metrics.jsonl").read_text().splitlines()]
+    assert [r["total"] for r in records] == [r["total"] for r in straight_records]
