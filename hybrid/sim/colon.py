@@ -94,9 +94,10 @@ def make_colon(config: ColonConfig, rng: np.random.Generator) -> Colon:
 
     n_rings = int(round(config.length_cm / config.ring_spacing_cm)) + 1
     ell = np.linspace(0.0, config.length_cm, n_rings)
-    centerline = CubicSpline(shape_ell, shape_centerline)(ell)
+    spline = CubicSpline(shape_ell, shape_centerline)
+    centerline = spline(ell)
     radius = np.interp(ell, shape_ell, shape_radius)
-    frames = _rotation_minimising_frames(centerline)
+    frames = _rotation_minimising_frames(centerline, spline(ell, 1))
     theta = np.linspace(0.0, 2 * np.pi, config.segments_around, endpoint=False)
     fold_depth = _fold_depth(ell, theta, folds, config.fold_sigma_cm)
     wall_radius = radius[:, None] - fold_depth
@@ -179,10 +180,12 @@ def _radius_profile(ell: np.ndarray, config: ColonConfig, rng: np.random.Generat
     return 0.5 * (lo + hi) + 0.5 * (hi - lo) * signal
 
 
-def _rotation_minimising_frames(points: np.ndarray) -> np.ndarray:
-    """(M, 3, 3) frames [tangent, normal, binormal] by the double-reflection method."""
-    tangents = np.gradient(points, axis=0)
-    tangents /= np.linalg.norm(tangents, axis=1, keepdims=True)
+def _rotation_minimising_frames(points: np.ndarray, tangents: np.ndarray) -> np.ndarray:
+    """(M, 3, 3) frames [tangent, normal, binormal] by the double-reflection method.
+
+    tangents come from the shape's spline, so the first frame does not depend on the sampling.
+    """
+    tangents = tangents / np.linalg.norm(tangents, axis=1, keepdims=True)
     seed = np.eye(3)[np.argmin(np.abs(tangents[0]))]
     normal = np.cross(tangents[0], seed)
     normal /= np.linalg.norm(normal)

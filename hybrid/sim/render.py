@@ -41,6 +41,7 @@ class ColonRenderer:
         u, w = np.meshgrid(np.arange(camera.width), np.arange(camera.height))
         self._rays_cam = np.stack([(u - camera.cx) / camera.fx, (w - camera.cy) / camera.fy,
                                    np.ones(u.shape)], axis=-1).astype(np.float32)
+        self._ray_len = np.linalg.norm(self._rays_cam, axis=-1)  # the same in any orientation
         radius2 = ((u - (camera.width - 1) / 2) ** 2 + (w - (camera.height - 1) / 2) ** 2) / (
             ((camera.width - 1) / 2) ** 2 + ((camera.height - 1) / 2) ** 2)
         self._vignette = (1.0 - style.vignetting * radius2)[..., None].astype(np.float32)
@@ -58,11 +59,11 @@ class ColonRenderer:
         weights = np.stack([1 - bary[..., 0] - bary[..., 1], bary[..., 0], bary[..., 1]], axis=-1)
         attributes = np.einsum("hwk,hwkc->hwc", weights, self._corners[tri])
         normal = attributes[..., 2:]
-        normal /= np.linalg.norm(normal, axis=-1, keepdims=True).clip(1e-12)
+        normal /= np.sqrt(np.einsum("hwc,hwc->hw", normal, normal))[..., None].clip(1e-12)
 
         albedo = cv2.remap(self.texture, attributes[..., 1], attributes[..., 0], cv2.INTER_LINEAR,
                            borderMode=cv2.BORDER_WRAP)
-        ray_len = np.linalg.norm(dirs, axis=-1)
+        ray_len = self._ray_len
         distance = np.where(valid, depth, 1.0) * ray_len
         facing = np.abs((normal * dirs).sum(axis=-1)) / ray_len
         falloff = (_REFERENCE_DISTANCE_CM / distance) ** 2

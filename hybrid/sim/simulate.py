@@ -98,6 +98,7 @@ def simulate_procedure(out_dir: Path, seed: int, index: int, config: SimConfig,
         rgb, depth = renderer.render(poses[i], rng)
         write_rgb(work / "rgb" / frame_name(i), rgb)
         write_depth(work / "depth" / frame_name(i), depth)
+    del renderer, texture  # free the texture and the render scene before labelling
 
     trimesh.Trimesh(colon.vertices, colon.triangles, process=False).export(work / "colon.ply")
     np.save(work / "lumen.npy", colon.centerline)
