@@ -225,3 +225,13 @@ def test_installed_command_exits_non_zero(tmp_path, inputs):
                           timeout=120)
     assert done.returncode == 2
     assert "no_such_mesh.ply" in done.stderr and "Traceback" not in done.stderr
+
+
+def test_camera_beyond_the_open_end(tmp_path, inputs):
+    """On the axis but 3 cm past the open end: no wall surrounds it, so it is outside."""
+    poses = np.stack(VIEWS)
+    poses[2, 2, 3] = -3.0
+    np.save(inputs["poses"], poses)
+    message = assert_fails_naming(run_coverage(*inputs.values()), tmp_path,
+                                  inputs["poses"].name, "poses")
+    assert "outside the mesh" in message and "[2]" in message

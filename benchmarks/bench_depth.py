@@ -1,0 +1,51 @@
+"""Depth-network inference speed (frames/s) on this CPU, for each preset.
+
+Times DepthNet alone and DepthNet + MotionNet (the pair's motion and intrinsics) in batches,
+with freshly initialised weights (speed does not depend on the weights).
+
+    .venv/bin/python benchmarks/bench_depth.py --presets fast paper --batch 16
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import torch
+
+from learned.config import depth_config
+from learned.model import DepthModel
+
+
+def frames_per_second(fn, batch: int, seconds: float) -> float:
+    fn()  # warm-up
+    count, start = 0, time.perf_counter()
+    while time.perf_counter() - start < seconds:
+        fn()
+        count += batch
+    return count / (time.perf_counter() - start)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--presets", nargs="+", default=["fast", "paper"])
+    parser.add_argument("--batch", type=int, default=16)
+    parser.add_argument("--seconds", type=float, default=10.0)
+    args = parser.parse_args()
+    print(f"torch {torch.__version__}, {torch.get_num_threads()} threads, batch {args.batch}")
+    for preset in args.presets:
+        config = depth_config(preset)
+        model = DepthModel(config).eval()
+        images = torch.rand(args.batch, 3, config.height, config.width)
+        with torch.no_grad():
+            depth_fps = frames_per_second(lambda m=model, x=images: m.depth(x), args.batch,
+                                          args.seconds)
+            both_fps = frames_per_second(
+                lambda m=model, x=images: (m.depth(x), m.pair_motion(x[:-1], x[1:])),
+                args.batch, args.seconds)
+        print(f"{preset:6s} {config.height}x{config.width}: depth {depth_fps:7.1f} frames/s, "
+              f"depth + motion/intrinsics {both_fps:7.1f} frames/s")
+
+
+if __name__ == "__main__":
+    main()
