@@ -41,6 +41,8 @@ class DepthConfig:
     """Training steps."""
     w_ssim: float = 0.85
     """Weight of (1 - SSIM) / 2 in the photometric error."""
+    ssim_window: int = 3
+    """SSIM window (pixels)."""
     w_l1: float = 0.15
     """Weight of L1 in the photometric error."""
     w_smooth: float = 1e-3

@@ -24,7 +24,7 @@ _SPECULAR_THRESHOLD = 0.96
 def photometric_error(a: torch.Tensor, b: torch.Tensor, config: DepthConfig) -> torch.Tensor:
     """(B, 1, H, W) per-pixel w_ssim·(1 - SSIM)/2 + w_l1·L1, averaged over channels."""
     l1 = (a - b).abs().mean(1, keepdim=True)
-    dssim = ((1 - ssim(a, b, 3)) / 2).clamp(0, 1).mean(1, keepdim=True)
+    dssim = ((1 - ssim(a, b, config.ssim_window)) / 2).clamp(0, 1).mean(1, keepdim=True)
     return config.w_ssim * dssim + config.w_l1 * l1
 
 

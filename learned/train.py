@@ -11,7 +11,7 @@ from __future__ import annotations
 import json
 import logging
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -96,6 +96,18 @@ def train_depth(data: list[Path], out: Path, config: DepthConfig, val: list[Path
     """Train (or resume) and return the checkpoint path."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
+    path = out / CHECKPOINT
+    step, tensors, meta = 0, None, None
+    if path.is_file():  # resume with the run's own config; only the number of steps may change
+        tensors, meta = read_checkpoint(path)
+        saved = DepthConfig.from_dict(meta["config"])
+        if saved.preset != config.preset:
+            raise InputError(f"{path} holds a {saved.preset!r} run; use another --out for the "
+                             f"{config.preset!r} preset")
+        config = replace(saved, steps=config.steps)
+        step = meta["step"]
+        log.info("resuming %s at step %d", path, step)
+        _drop_records_after(out / "metrics.jsonl", step)
     size = (config.height, config.width)
     sampler = TripletSampler([open_sequence(p, size) for p in expand_inputs(data)],
                              config.pair_gap_s)
@@ -104,17 +116,9 @@ def train_depth(data: list[Path], out: Path, config: DepthConfig, val: list[Path
     torch.manual_seed(config.seed)
     model = DepthModel(config)
     optimizer = torch.optim.Adam(model.parameters(), lr=config.learning_rate)
-    path = out / CHECKPOINT
-    step = 0
-    if path.is_file():
-        tensors, meta = read_checkpoint(path)
-        if meta["config"]["preset"] != config.preset:
-            raise InputError(f"{path} holds a {meta['config']['preset']!r} run; use another "
-                             f"--out for the {config.preset!r} preset")
+    if tensors is not None:
         load_modules(tensors, {"depth": model.depth, "motion": model.motion}, path)
         load_optimizer(tensors, meta, optimizer)
-        step = meta["step"]
-        log.info("resuming %s at step %d", path, step)
     (out / "config.json").write_text(json.dumps(config.to_dict(), indent=1) + "\n")
     metrics_log = (out / "metrics.jsonl").open("a")
     model.train()
@@ -152,3 +156,11 @@ def train_depth(data: list[Path], out: Path, config: DepthConfig, val: list[Path
     bar.close()
     metrics_log.close()
     return path
+
+
+def _drop_records_after(metrics: Path, step: int) -> None:
+    """Forget log lines written after the checkpoint a run resumes from."""
+    if metrics.is_file():
+        lines = [line for line in metrics.read_text().splitlines()
+                 if line and json.loads(line)["step"] <= step]
+        metrics.write_text("".join(line + "\n" for line in lines))

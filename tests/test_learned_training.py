@@ -174,14 +174,17 @@ def test_config_dict_round_trip():
 
 def test_train_depth_resumes_where_it_stopped(tmp_path, clip):
     """2 steps, then the same folder with steps = 4, equals 4 steps in one go, bit for bit.
-    (Auto-masking is off: its tie-breaking noise draws from torch's global RNG, whose state a
-    checkpoint does not hold.)"""
-    config = replace(TINY, steps=2, automask=False)
+    The resumed run keeps its own config (only the number of steps may change), and log lines
+    written after the last checkpoint are forgotten."""
+    config = replace(TINY, steps=2)
     resumed, straight = tmp_path / "resumed", tmp_path / "straight"
     path = train_depth([clip], resumed, config, log_every=1, progress=False)
     assert path == resumed / "checkpoint.safetensors"
     assert read_checkpoint(path)[1]["step"] == 2
-    train_depth([clip], resumed, replace(config, steps=4), log_every=1, progress=False)
+    with (resumed / "metrics.jsonl").open("a") as log:  # as if killed after a later step
+        log.write(json.dumps({"step": 3, "total": -1.0}) + "\n")
+    train_depth([clip], resumed, replace(config, steps=4, pair_gap_s=0.9, learning_rate=0.1),
+                log_every=1, progress=False)
     train_depth([clip], straight, replace(config, steps=4), log_every=1, progress=False)
 
     tensors, meta = read_checkpoint(path)
