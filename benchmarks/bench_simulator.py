@@ -38,20 +38,9 @@ from dataclasses import replace
 from multiprocessing import get_context
 from pathlib import Path
 
-import numpy as np
-
 from hybrid.coverage import Lumen, SurfaceMesh, compute_coverage
 from hybrid.dataset import frame_name, write_depth, write_rgb
-from hybrid.sim.appearance import get_style, make_texture
-from hybrid.sim.colon import make_colon
-from hybrid.sim.render import ColonRenderer
-from hybrid.sim.simulate import (
-    SimConfig,
-    draw_camera,
-    simulate_procedure,
-    with_overrides,
-)
-from hybrid.sim.trajectory import make_withdrawal
+from hybrid.sim.simulate import SimConfig, draw_scene, simulate_procedure, with_overrides
 
 
 class Clock:
@@ -68,16 +57,9 @@ class Clock:
 
 def build(config: SimConfig, seed: int, index: int = 0):
     """Colon, camera, poses and renderer drawn as simulate_procedure draws them."""
-    rng = np.random.default_rng([seed, index])
     with Clock() as setup:
-        colon = make_colon(config.colon, rng)
-        camera = draw_camera(config, rng)
-        poses = make_withdrawal(colon, config.trajectory, rng)
-        style = get_style(config.style)
-        circumference = 2 * np.pi * float(np.mean(config.colon.radius_range_cm))
-        texture = make_texture(config.colon.length_cm, circumference, style, rng)
-        renderer = ColonRenderer(colon, texture, style, camera, circumference)
-    return colon, camera, poses, renderer, rng, setup.wall
+        scene = draw_scene(config, seed, index)
+    return scene.colon, scene.camera, scene.poses, scene.renderer, scene.rng, setup.wall
 
 
 def bench_preset(preset: str, frames: int, seed: int, profile: bool) -> None:

@@ -97,7 +97,7 @@ def train_depth(data: list[Path], out: Path, config: DepthConfig, val: list[Path
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     path = out / CHECKPOINT
-    step, tensors, meta = 0, None, None
+    step, tensors, meta, elapsed = 0, None, None, 0.0
     if path.is_file():  # resume with the run's own config; only the number of steps may change
         tensors, meta = read_checkpoint(path)
         saved = DepthConfig.from_dict(meta["config"])
@@ -107,7 +107,7 @@ def train_depth(data: list[Path], out: Path, config: DepthConfig, val: list[Path
         config = replace(saved, steps=config.steps)
         step = meta["step"]
         log.info("resuming %s at step %d", path, step)
-        _drop_records_after(out / "metrics.jsonl", step)
+        elapsed = _drop_records_after(out / "metrics.jsonl", step)
     size = (config.height, config.width)
     sampler = TripletSampler([open_sequence(p, size) for p in expand_inputs(data)],
                              config.pair_gap_s)
@@ -123,7 +123,7 @@ def train_depth(data: list[Path], out: Path, config: DepthConfig, val: list[Path
     metrics_log = (out / "metrics.jsonl").open("a")
     model.train()
     running: dict[str, float] = {}
-    started = time.time()
+    started = time.time() - elapsed  # seconds in the log count the whole run
     bar = tqdm(total=config.steps, initial=step, desc="train-depth", unit="step",
                disable=not progress)
     while step < config.steps:
@@ -158,9 +158,11 @@ def train_depth(data: list[Path], out: Path, config: DepthConfig, val: list[Path
     return path
 
 
-def _drop_records_after(metrics: Path, step: int) -> None:
-    """Forget log lines written after the checkpoint a run resumes from."""
-    if metrics.is_file():
-        lines = [line for line in metrics.read_text().splitlines()
-                 if line and json.loads(line)["step"] <= step]
-        metrics.write_text("".join(line + "\n" for line in lines))
+def _drop_records_after(metrics: Path, step: int) -> float:
+    """Forget log lines written after the checkpoint a run resumes from; return its seconds."""
+    if not metrics.is_file():
+        return 0.0
+    records = [json.loads(line) for line in metrics.read_text().splitlines() if line]
+    records = [r for r in records if r["step"] <= step]
+    metrics.write_text("".join(json.dumps(r) + "\n" for r in records))
+    return float(records[-1]["seconds"]) if records else 0.0

@@ -13,8 +13,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import torch
 
 from hybrid.types import Camera
+from learned.config import DEPTH_PRESETS
 
 
 @dataclass(frozen=True)
@@ -154,3 +156,18 @@ def simulated(tmp_path_factory, sim_config) -> Path:
     from hybrid.sim.simulate import simulate_procedure
 
     return simulate_procedure(tmp_path_factory.mktemp("sim_a"), 7, 0, sim_config)
+
+
+TINY = replace(DEPTH_PRESETS["fast"], height=64, width=96, batch_size=2, learning_rate=1e-3,
+               encoder_channels=(8, 8, 16, 16, 32), decoder_channels=(8, 8, 8, 16, 16),
+               motion_channels=(8, 8, 16, 16, 32))
+"""The fast depth preset shrunk for tests (its preset name stays 'fast')."""
+
+
+@pytest.fixture
+def one_thread():
+    """Keep torch on one thread: the machine is shared, and results stay deterministic."""
+    previous = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(previous)

@@ -9,11 +9,7 @@ import pytest
 
 from hybrid.coverage import Lumen, compute_coverage
 from hybrid.dataset import DEPTH_UNIT_CM, Procedure, list_procedures, read_depth, write_depth
-from hybrid.sim.appearance import get_style, make_texture
-from hybrid.sim.colon import make_colon
-from hybrid.sim.render import ColonRenderer
-from hybrid.sim.simulate import draw_camera
-from hybrid.sim.trajectory import make_withdrawal
+from hybrid.sim.simulate import draw_scene
 from hybrid.types import InputError
 
 
@@ -21,15 +17,8 @@ from hybrid.types import InputError
 def regenerated(sim_config):
     """The simulator's in-memory colon, camera, poses and renderer for seed 7, index 0, drawn
     in the same order as simulate_procedure."""
-    rng = np.random.default_rng([7, 0])
-    colon = make_colon(sim_config.colon, rng)
-    camera = draw_camera(sim_config, rng)
-    poses = make_withdrawal(colon, sim_config.trajectory, rng)
-    style = get_style(sim_config.style)
-    circumference = 2 * np.pi * float(np.mean(sim_config.colon.radius_range_cm))
-    texture = make_texture(sim_config.colon.length_cm, circumference, style, rng)
-    renderer = ColonRenderer(colon, texture, style, camera, circumference)
-    return colon, camera, poses, renderer, rng
+    scene = draw_scene(sim_config, 7, 0)
+    return scene.colon, scene.camera, scene.poses, scene.renderer, scene.rng
 
 
 def test_loader_round_trip(simulated, regenerated):

@@ -13,6 +13,7 @@ import cv2
 import numpy as np
 import pytest
 import torch
+from conftest import TINY
 from typer.testing import CliRunner
 
 from hybrid.cli import app
@@ -24,18 +25,7 @@ from learned.model import DepthModel, load_depth_model
 
 runner = CliRunner()
 
-TINY = replace(DEPTH_PRESETS["fast"], height=64, width=96,
-               encoder_channels=(8, 8, 16, 16, 32), decoder_channels=(8, 8, 8, 16, 16),
-               motion_channels=(8, 8, 16, 16, 32))
-"""A fast-preset config with small networks (its preset name stays 'fast')."""
-
-
-@pytest.fixture(autouse=True)
-def one_thread():
-    previous = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(previous)
+pytestmark = pytest.mark.usefixtures("one_thread")
 
 
 def save_model(path: Path, model: DepthModel, config: dict) -> Path:

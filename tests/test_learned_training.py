@@ -10,27 +10,16 @@ from dataclasses import replace
 import numpy as np
 import pytest
 import torch
+from conftest import TINY
 
 from learned.checkpoint import read_checkpoint, save_checkpoint
-from learned.config import DEPTH_PRESETS, DepthConfig
+from learned.config import DepthConfig
 from learned.frames import open_sequence
 from learned.model import DepthModel, load_depth_model
 from learned.nets import DepthNet
 from learned.train import TripletSampler, train_depth
 
-TINY = replace(DEPTH_PRESETS["fast"], height=64, width=96, batch_size=2, learning_rate=1e-3,
-               encoder_channels=(8, 8, 16, 16, 32), decoder_channels=(8, 8, 8, 16, 16),
-               motion_channels=(8, 8, 16, 16, 32))
-"""Fast preset shrunk for tests (96 = 3·32: the U-Net halves the size five times)."""
-
-
-@pytest.fixture(autouse=True)
-def one_thread():
-    """The machine is shared: keep torch on one thread (and its results deterministic)."""
-    previous = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(previous)
+pytestmark = pytest.mark.usefixtures("one_thread")
 
 
 @pytest.fixture(scope="module")

@@ -23,7 +23,7 @@ from hybrid import __version__
 from hybrid.coverage import Lumen, SurfaceMesh, compute_coverage
 from hybrid.dataset import REQUIRED_FILES, frame_name, write_depth, write_rgb
 from hybrid.sim.appearance import get_style, make_texture
-from hybrid.sim.colon import ColonConfig, make_colon
+from hybrid.sim.colon import Colon, ColonConfig, make_colon
 from hybrid.sim.render import ColonRenderer
 from hybrid.sim.trajectory import TrajectoryConfig, make_withdrawal
 from hybrid.types import PRESET_IMAGE_SIZE, Camera
@@ -73,6 +73,30 @@ def draw_camera(config: SimConfig, rng: np.random.Generator) -> Camera:
                   fps=config.trajectory.fps)
 
 
+@dataclass
+class Scene:
+    """One procedure in memory: what it is rendered from, and the generator to render with."""
+
+    colon: Colon
+    camera: Camera
+    poses: np.ndarray
+    renderer: ColonRenderer
+    rng: np.random.Generator
+
+
+def draw_scene(config: SimConfig, seed: int, index: int) -> Scene:
+    """Colon, camera, withdrawal and renderer of procedure `index` of `seed`."""
+    rng = np.random.default_rng([seed, index])
+    colon = make_colon(config.colon, rng)
+    camera = draw_camera(config, rng)
+    poses = make_withdrawal(colon, config.trajectory, rng)
+    style = get_style(config.style)
+    circumference = 2 * np.pi * float(np.mean(config.colon.radius_range_cm))
+    texture = make_texture(config.colon.length_cm, circumference, style, rng)
+    return Scene(colon, camera, poses, ColonRenderer(colon, texture, style, camera,
+                                                     circumference), rng)
+
+
 def simulate_procedure(out_dir: Path, seed: int, index: int, config: SimConfig,
                        progress: bool = False) -> Path:
     """Write procedure `index` of `seed` under out_dir; skip it if already complete."""
@@ -85,20 +109,14 @@ def simulate_procedure(out_dir: Path, seed: int, index: int, config: SimConfig,
     (work / "rgb").mkdir(parents=True)
     (work / "depth").mkdir()
 
-    rng = np.random.default_rng([seed, index])
-    colon = make_colon(config.colon, rng)
-    camera = draw_camera(config, rng)
-    poses = make_withdrawal(colon, config.trajectory, rng)
-    style = get_style(config.style)
-    circumference = 2 * np.pi * float(np.mean(config.colon.radius_range_cm))
-    texture = make_texture(config.colon.length_cm, circumference, style, rng)
-    renderer = ColonRenderer(colon, texture, style, camera, circumference)
+    scene = draw_scene(config, seed, index)
+    colon, camera, poses = scene.colon, scene.camera, scene.poses
     for i in tqdm(range(len(poses)), desc=f"render {final.name}", unit="frame",
                   disable=not progress, leave=False):
-        rgb, depth = renderer.render(poses[i], rng)
+        rgb, depth = scene.renderer.render(poses[i], scene.rng)
         write_rgb(work / "rgb" / frame_name(i), rgb)
         write_depth(work / "depth" / frame_name(i), depth)
-    del renderer, texture  # free the texture and the render scene before labelling
+    del scene  # free the texture and the render scene before labelling
 
     trimesh.Trimesh(colon.vertices, colon.triangles, process=False).export(work / "colon.ply")
     np.save(work / "lumen.npy", colon.centerline)
