@@ -78,7 +78,7 @@ def coverage(
 
     result = compute_coverage(SurfaceMesh.load(mesh), Lumen(_load_npy(lumen), name=str(lumen)),
                               _load_npy(poses), Camera.load(camera), segment_frames,
-                              progress=out is not None)
+                              progress=out is not None, poses_name=str(poses))
     if out is None:
         typer.echo(json.dumps(result.to_json(), indent=1))
     else:

@@ -241,16 +241,18 @@ def compute_coverage(
     segment_frames: int = SEGMENT_FRAMES,
     delta_pairs: tuple[tuple[float, float], ...] = DELTA_PAIRS_CM,
     progress: bool = False,
+    poses_name: str = "poses",
 ) -> CoverageResult:
     """Per-frame coverage for every frame and per-segment coverage for full segments.
 
-    Frames after the last full segment get per-frame values but no segment.
+    Frames after the last full segment get per-frame values but no segment. poses_name names
+    the poses in error messages (e.g. their file).
     """
-    poses = check_poses(poses)
+    poses = check_poses(poses, name=poses_name)
     if segment_frames < 1:
         raise InputError(f"segment length must be at least 1 frame, got {segment_frames}")
     oracle = VisibilityOracle(mesh, camera)
-    oracle.check_inside(poses[:, :3, 3], lumen)
+    oracle.check_inside(poses[:, :3, 3], lumen, name=poses_name)
     vertex_ell, _ = lumen.project(mesh.vertices)
     order = np.argsort(vertex_ell)
     sorted_ell = vertex_ell[order]
