@@ -53,6 +53,9 @@ class DepthConfig:
     """Forward and backward rotations compose to the identity."""
     w_translation_cycle: float = 1e-2
     """Forward and backward translations cancel."""
+    mask_out_of_view: bool = True
+    """Ignore pixels that project outside the source (Gordon et al.). Off, they are compared
+    with the border-padded source as in monodepth2."""
     automask: bool = True
     """Ignore pixels that the un-warped source explains better (static scenes)."""
     brightness_match: bool = True

@@ -88,14 +88,15 @@ def view_synthesis_loss(
         T_ts = transform_from(r_ts, t_ts)
         T_st = transform_from(r_st, t_st)
         w = warp(source, target_depth, T_ts, K, source_depth)
-        mask = usable & w.valid
-        if config.specular_mask:
-            mask = mask & ~specular(w.image)
+        compared = usable & ~specular(w.image) if config.specular_mask else usable
+        mask = compared & w.valid
+        if config.mask_out_of_view:
+            compared = mask
         image = _relit(w, config)
         if config.brightness_match:
             image = match_brightness(image, target, mask)
         error = photometric_error(image, target, config)
-        errors.append(torch.where(mask, error, torch.full_like(error, 1e3)))
+        errors.append(torch.where(compared, error, torch.full_like(error, 1e3)))
         identity_errors.append(photometric_error(source, target, config))
         consistency.append(_depth_consistency(w, mask))
         cycle = T_st @ T_ts
