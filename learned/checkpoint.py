@@ -78,3 +78,16 @@ def load_optimizer(tensors: dict[str, torch.Tensor], meta: dict,
             state.setdefault(int(index), {})[name] = value
     optimizer.load_state_dict({"state": state,
                                "param_groups": json.loads(meta["optimizer_groups"])})
+
+
+def export_weights(checkpoint: Path, dest: Path, kind: str = "depth") -> Path:
+    """Copy a training checkpoint without its optimiser state (what is shipped)."""
+    tensors, meta = read_checkpoint(checkpoint, kind)
+    weights = {k: v for k, v in tensors.items() if not k.startswith("optimizer.")}
+    meta = {"kind": kind, "config": json.dumps(meta["config"]), "step": str(meta["step"]),
+            "c2d2_version": meta.get("c2d2_version", __version__)}
+    dest = Path(dest)
+    tmp = dest.with_name(dest.name + ".tmp")
+    save_file(weights, str(tmp), metadata=meta)
+    os.replace(tmp, dest)
+    return dest

@@ -1,7 +1,8 @@
 """Unsupervised training of depth, ego-motion and intrinsics by view synthesis, on RGB only.
 
 Reads simulated procedures, folders of images or videos; writes into the output folder
-`checkpoint.safetensors` (weights, optimiser, step, config), `config.json` and
+`checkpoint.safetensors` (weights, optimiser, step, config), `model.safetensors` (the weights
+alone, when the run completes), `config.json` and
 `metrics.jsonl` (training losses; validation metrics where ground truth exists, which is used
 for nothing else). Rerunning with the same folder resumes from the last checkpoint.
 """
@@ -19,7 +20,13 @@ import torch
 from tqdm import tqdm
 
 from hybrid.types import InputError
-from learned.checkpoint import load_modules, load_optimizer, read_checkpoint, save_checkpoint
+from learned.checkpoint import (
+    export_weights,
+    load_modules,
+    load_optimizer,
+    read_checkpoint,
+    save_checkpoint,
+)
 from learned.config import DepthConfig
 from learned.frames import VIDEO_SUFFIXES, FrameSequence, open_sequence
 from learned.metrics import intrinsics_error, mre
@@ -27,6 +34,8 @@ from learned.model import DepthModel, to_tensor
 
 log = logging.getLogger(__name__)
 CHECKPOINT = "checkpoint.safetensors"
+WEIGHTS = "model.safetensors"
+"""Written when a run completes: the weights alone, as shipped."""
 
 
 def expand_inputs(paths: list[Path]) -> list[Path]:
@@ -155,6 +164,7 @@ def train_depth(data: list[Path], out: Path, config: DepthConfig, val: list[Path
                             config.to_dict(), step, optimizer)
     bar.close()
     metrics_log.close()
+    export_weights(path, out / WEIGHTS)
     return path
 
 

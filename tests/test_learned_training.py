@@ -12,7 +12,7 @@ import pytest
 import torch
 from conftest import TINY
 
-from learned.checkpoint import read_checkpoint, save_checkpoint
+from learned.checkpoint import export_weights, read_checkpoint, save_checkpoint
 from learned.config import DepthConfig
 from learned.frames import open_sequence
 from learned.model import DepthModel, load_depth_model
@@ -191,3 +191,22 @@ def test_train_depth_resumes_where_it_stopped(tmp_path, clip):
     straight_records = [json.loads(line)
                         for line in (straight / "metrics.jsonl").read_text().splitlines()]
     assert [r["total"] for r in records] == [r["total"] for r in straight_records]
+
+
+def test_exported_weights_drop_the_optimiser_and_predict_the_same(tmp_path, batch):
+    model = DepthModel(TINY)
+    optimizer = torch.optim.Adam(model.parameters(), lr=1e-3)
+    frames, region = batch
+    model.loss(frames, region).total.backward()
+    optimizer.step()
+    full = tmp_path / "checkpoint.safetensors"
+    save_checkpoint(full, {"depth": model.depth, "motion": model.motion}, TINY.to_dict(), 1,
+                    optimizer)
+    slim = export_weights(full, tmp_path / "model.safetensors")
+    tensors, meta = read_checkpoint(slim)
+    assert meta["step"] == 1 and not any(k.startswith("optimizer.") for k in tensors)
+    assert slim.stat().st_size < full.stat().st_size / 2  # Adam keeps two moments per weight
+    loaded = load_depth_model(slim)
+    model.eval()
+    with torch.no_grad():
+        assert torch.equal(loaded.depth(frames[:, 1]), model.depth(frames[:, 1]))
