@@ -46,7 +46,8 @@ def main() -> None:
             short = K.clone()
             short[:, 0, 0] *= 0.8
             short[:, 1, 1] *= 0.8
-            turn = transform_from(torch.tensor([[0.0, np.radians(1.0), 0.0]]), torch.zeros(1, 3))
+            turn = transform_from(torch.tensor([[0.0, np.radians(1.0), 0.0]], dtype=torch.float32),
+                                  torch.zeros(1, 3))
             for t in np.linspace(0, proc.num_frames - 1 - gap, args.targets).astype(int):
                 target, source = to_tensor(proc.rgb(t))[None], to_tensor(proc.rgb(t + gap))[None]
                 depth = torch.from_numpy(proc.depth(t))[None, None]

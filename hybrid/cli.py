@@ -138,13 +138,17 @@ def train_depth(
     steps: Annotated[int | None, typer.Option(help="Training steps (preset default).")] = None,
     batch_size: Annotated[int | None, typer.Option(help="Triplets per step.")] = None,
     seed: Annotated[int | None, typer.Option(help="Random seed.")] = None,
+    set_: Annotated[list[str] | None, typer.Option(
+        "--set", help="Override a config field, e.g. --set pair_gap_s=0.6 (see learned/config.py)."
+    )] = None,
 ):
     """Train depth, ego-motion and intrinsics by view synthesis; resumes from --out."""
-    from learned.config import depth_config
+    from learned.config import depth_config, parse_overrides
     from learned.train import train_depth as run
 
     try:
-        config = depth_config(preset, steps=steps, batch_size=batch_size, seed=seed)
+        config = depth_config(preset, steps=steps, batch_size=batch_size, seed=seed,
+                              **parse_overrides(set_ or []))
     except ValueError as err:
         raise InputError(str(err)) from err
     typer.echo(str(run(data, out, config, val or [])))

@@ -94,3 +94,25 @@ def depth_config(preset: str, **overrides) -> DepthConfig:
     if preset not in DEPTH_PRESETS:
         raise ValueError(f"unknown preset {preset!r}; choose one of {sorted(DEPTH_PRESETS)}")
     return replace(DEPTH_PRESETS[preset], **{k: v for k, v in overrides.items() if v is not None})
+
+
+def parse_overrides(items: list[str]) -> dict:
+    """{'pair_gap_s': 0.6} from ['pair_gap_s=0.6'], each value parsed as its field's type."""
+    types = {f.name: type(getattr(DEPTH_PRESETS["fast"], f.name)) for f in fields(DepthConfig)}
+    out = {}
+    for item in items:
+        key, sep, text = item.partition("=")
+        if not sep or key not in types or types[key] is tuple:
+            scalars = ", ".join(k for k, t in types.items() if t is not tuple)
+            raise ValueError(f"--set {item!r}: expected FIELD=VALUE with one of {scalars}")
+        kind = types[key]
+        if kind is bool:
+            if text.lower() not in ("true", "false"):
+                raise ValueError(f"--set {item!r}: {key} takes true or false")
+            out[key] = text.lower() == "true"
+        else:
+            try:
+                out[key] = kind(text)
+            except ValueError as err:
+                raise ValueError(f"--set {item!r}: {key} takes a {kind.__name__}") from err
+    return out

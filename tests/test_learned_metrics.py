@@ -212,3 +212,14 @@ def test_trajectory_errors_hand_case():
     assert got["rpe_rotation_deg"] == pytest.approx(3.0, abs=1e-6)  # arccos near 1: ~1e-8 rad
     with pytest.raises(ValueError, match="same length"):
         trajectory_errors(pred[:3], true[:4])
+
+
+def test_config_overrides_parse_by_field_type():
+    from learned.config import parse_overrides
+
+    assert parse_overrides(["pair_gap_s=0.6", "ssim_window=7", "mask_out_of_view=false"]) == {
+        "pair_gap_s": 0.6, "ssim_window": 7, "mask_out_of_view": False}
+    for bad in (["nonsense=1"], ["ssim_window=seven"], ["automask=maybe"], ["steps"],
+                ["encoder_channels=1"]):
+        with pytest.raises(ValueError, match="--set"):
+            parse_overrides(bad)
