@@ -91,7 +91,7 @@ def coverage(
 def demo(
     out: Annotated[Path, typer.Option(help="Folder for the demo's outputs.")] = Path("c2d2-demo"),
     seed: Annotated[int, typer.Option(help="Random seed.")] = 0,
-    length_cm: Annotated[float, typer.Option(help="Colon length in cm.")] = 30.0,
+    length_cm: Annotated[float, typer.Option(help="Colon length in cm.")] = 50.0,
 ):
     """Simulate a short procedure, write a preview and print its per-segment ground truth."""
     from hybrid.coverage import pair_key

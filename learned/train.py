@@ -113,6 +113,9 @@ def train_depth(data: list[Path], out: Path, config: DepthConfig, val: list[Path
         if saved.preset != config.preset:
             raise InputError(f"{path} holds a {saved.preset!r} run; use another --out for the "
                              f"{config.preset!r} preset")
+        if replace(config, steps=saved.steps) != saved:
+            log.warning("%s: resuming with the run's own config; only --steps is taken from "
+                        "the command line", path)
         config = replace(saved, steps=config.steps)
         step = meta["step"]
         log.info("resuming %s at step %d", path, step)
