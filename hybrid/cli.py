@@ -45,8 +45,8 @@ def simulate(
     style: Annotated[str, typer.Option(help="Appearance style: pink or dusk.")] = "pink",
     length_cm: Annotated[float | None, typer.Option(help="Colon length in cm (default 120).")
                          ] = None,
-    max_frames: Annotated[int | None, typer.Option(help="Stop each withdrawal after N frames.")
-                          ] = None,
+    max_frames: Annotated[int | None, typer.Option(min=1, help="Stop each withdrawal after N "
+                                                   "frames.")] = None,
     first_index: Annotated[int, typer.Option(help="Index of the first procedure.")] = 0,
     workers: Annotated[int, typer.Option(min=1, help="Procedures simulated in parallel.")] = 1,
 ):
@@ -76,6 +76,8 @@ def coverage(
     from hybrid.coverage import Lumen, SurfaceMesh, compute_coverage
     from hybrid.types import Camera
 
+    if out is not None and not out.parent.is_dir():
+        raise InputError(f"folder for --out does not exist: {out.parent}")
     result = compute_coverage(SurfaceMesh.load(mesh), Lumen(_load_npy(lumen), name=str(lumen)),
                               _load_npy(poses), Camera.load(camera), segment_frames,
                               progress=out is not None, poses_name=str(poses))
@@ -99,7 +101,10 @@ def demo(
     from hybrid.preview import write_preview
     from hybrid.sim.simulate import SimConfig, simulate_procedure, with_overrides
 
-    config = with_overrides(SimConfig(), length_cm=length_cm)
+    try:
+        config = with_overrides(SimConfig(), length_cm=length_cm)
+    except ValueError as err:
+        raise InputError(str(err)) from err
     procedure = Procedure.open(simulate_procedure(out, seed, 0, config, progress=True))
     preview = write_preview(procedure, out / "preview.png")
     cov = procedure.coverage
@@ -127,8 +132,9 @@ def _load_npy(path: Path):
 @app.command("train-depth")
 @_reports_input_errors
 def train_depth(
-    data: Annotated[list[Path], typer.Option(help="Procedures, image folders or videos (or "
-                                             "folders of them); RGB only is used.")],
+    data: Annotated[list[Path], typer.Option(help="Procedures, image folders or videos, or "
+                                             "folders of procedures or videos; RGB only is "
+                                             "used.")],
     out: Annotated[Path, typer.Option(help="Run folder: checkpoint, config, metrics log.")],
     preset: Annotated[str, typer.Option(help="fast (CPU, 128x160) or paper (ResNet-18, "
                                         "320x384).")] = "fast",
@@ -191,7 +197,8 @@ def eval_depth(
     checkpoint: Annotated[Path | None, typer.Option(help="Depth checkpoint (default: the "
                                                     "shipped fast one).")] = None,
     out: Annotated[Path | None, typer.Option(help="Write the metrics JSON here.")] = None,
-    frames: Annotated[int, typer.Option(help="Frames per procedure for depth metrics.")] = 24,
+    frames: Annotated[int, typer.Option(min=1, help="Frames per procedure for depth metrics.")
+                      ] = 24,
 ):
     """MRE, DR-MRE, DOM, abs_rel & co., intrinsics error, ATE and RPE on simulated data."""
     from learned.evaluate import DEPTH_KEYS, evaluate_sequence, summarise

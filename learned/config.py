@@ -102,8 +102,8 @@ def parse_overrides(items: list[str]) -> dict:
     out = {}
     for item in items:
         key, sep, text = item.partition("=")
-        if not sep or key not in types or types[key] is tuple:
-            scalars = ", ".join(k for k, t in types.items() if t is not tuple)
+        if not sep or key not in types or types[key] is tuple or key == "preset":
+            scalars = ", ".join(k for k, t in types.items() if t is not tuple and k != "preset")
             raise ValueError(f"--set {item!r}: expected FIELD=VALUE with one of {scalars}")
         kind = types[key]
         if kind is bool:

@@ -30,6 +30,8 @@ def evaluate_sequence(model: DepthModel, seq: FrameSequence, depth_frames: int =
     """Metrics of one simulated procedure (seq must carry its true camera and depth)."""
     if seq.camera is None or seq.poses is None:
         raise InputError(f"{seq.name}: no ground truth; eval-depth needs simulated procedures")
+    if seq.num_frames < 3:
+        raise InputError(f"{seq.name}: needs at least 3 frames for trajectory errors")
     window = range(0, min(seq.num_frames, trajectory_frames))
     result = infer_sequence(model, seq, frames=window)
     picks = np.linspace(0, seq.num_frames - 1, depth_frames).round().astype(int)

@@ -20,7 +20,7 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from hybrid.types import Camera
+from hybrid.types import Camera, InputError
 from learned.frames import FrameSequence
 from learned.geometry import transform_from
 from learned.model import DepthModel, to_tensor
@@ -51,7 +51,9 @@ def infer_sequence(model: DepthModel, seq: FrameSequence, batch: int = 16,
                    progress: bool = False, frames: range | None = None) -> DepthOutput:
     """Run the networks over consecutive frames of seq (all, or the given range)."""
     model.eval()
-    frames = frames or range(seq.num_frames)
+    frames = range(seq.num_frames) if frames is None else frames
+    if len(frames) < 2:
+        raise InputError(f"{seq.name}: depth and motion need at least 2 frames")
     depth, relative, K_pairs = [], [], []
     previous = None
     for start in tqdm(range(frames.start, frames.stop, batch), desc=f"depth {seq.name}",

@@ -112,7 +112,7 @@ class MotionNet(nn.Module):
         self.translation_scale = nn.Parameter(torch.tensor(0.01))
         nn.init.zeros_(self.intrinsics.weight)
         nn.init.zeros_(self.intrinsics.bias)
-        # softplus(-0.4) = 0.51: the focal length starts at about half the image width.
+        # softplus(-0.4) = 0.51: fx starts at about half the width, fy at half the height.
         nn.init.constant_(self.intrinsics.bias[:2], -0.4)
         self.register_buffer("mean", torch.tensor([0.45] * 6).view(1, 6, 1, 1))
 

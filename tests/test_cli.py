@@ -235,3 +235,16 @@ def test_camera_beyond_the_open_end(tmp_path, inputs):
     message = assert_fails_naming(run_coverage(*inputs.values()), tmp_path,
                                   inputs["poses"].name, "poses")
     assert "outside the mesh" in message and "[2]" in message
+
+
+def test_out_folder_that_does_not_exist(tmp_path, inputs):
+    """Checked before the computation, so no work is lost."""
+    result = run_coverage(*inputs.values(), "--out", str(tmp_path / "absent" / "c.json"))
+    assert "does not exist" in assert_fails_naming(result, tmp_path, "absent")
+
+
+@pytest.mark.parametrize("length", ["5", "-1"])
+def test_simulate_a_colon_too_short_to_withdraw(tmp_path, length):
+    result = runner.invoke(app, ["simulate", "--out", str(tmp_path), "--length-cm", length])
+    assert result.exit_code == 2 and "colon length must exceed" in result.stderr
+    assert not any(tmp_path.iterdir())  # nothing half-written

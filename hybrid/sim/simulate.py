@@ -56,6 +56,13 @@ class SimConfig:
         if self.preset not in PRESET_IMAGE_SIZE:
             raise ValueError(f"unknown preset {self.preset!r}; choose {sorted(PRESET_IMAGE_SIZE)}")
         get_style(self.style)
+        shortest = self.trajectory.start_depth_cm + self.trajectory.end_margin_cm
+        if self.colon.length_cm <= shortest:
+            raise ValueError(f"colon length must exceed {shortest:g} cm (the withdrawal starts "
+                             f"{self.trajectory.start_depth_cm:g} cm before the cecum and stops "
+                             f"{self.trajectory.end_margin_cm:g} cm before the rectum)")
+        if self.trajectory.max_frames is not None and self.trajectory.max_frames < 1:
+            raise ValueError("max_frames must be at least 1")
 
 
 def procedure_name(index: int) -> str:
