@@ -77,8 +77,9 @@ def main() -> None:
         loss.backward()
         optimizer.step()
         if step % 100 == 0:
-            print(f"step {step}: loss {float(loss.detach()):.4f}, predicted fx / true fx on held-out = "
-                  f"{focal_ratio(model, val, gap):.3f}")
+            ratio = focal_ratio(model, val, gap)
+            print(f"step {step}: loss {float(loss.detach()):.4f}, predicted fx / true fx on "
+                  f"held-out = {ratio:.3f}")
 
 
 if __name__ == "__main__":
