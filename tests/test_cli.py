@@ -153,31 +153,35 @@ def test_lumen_of_one_point(tmp_path, inputs, small_tube):
     assert "at least 2" in message
 
 
-def test_nan_in_poses(tmp_path, inputs):
-    poses = np.stack(VIEWS)
+def _nan_translation(poses):
     poses[1, 0, 3] = np.nan
-    np.save(inputs["poses"], poses)
-    message = assert_fails_naming(run_coverage(*inputs.values()), tmp_path,
-                                  inputs["poses"].name, "poses")
-    assert "NaN" in message and "[1]" in message
 
 
-def test_non_rigid_pose(tmp_path, inputs):
-    poses = np.stack(VIEWS)
+def _scaled_rotation(poses):
     poses[0, :3, :3] *= 2.0  # a scale is not a camera pose
-    np.save(inputs["poses"], poses)
-    message = assert_fails_naming(run_coverage(*inputs.values()), tmp_path,
-                                  inputs["poses"].name, "poses")
-    assert "rigid" in message and "[0]" in message
 
 
-def test_camera_outside_the_mesh(tmp_path, inputs):
-    poses = np.stack(VIEWS)
+def _off_axis(poses):
     poses[1, 0, 3] += 10.0  # 10 cm off the axis of a 2 cm tube
+
+
+def _beyond_open_end(poses):
+    poses[2, 2, 3] = -3.0  # on the axis, 3 cm past the open end: no wall surrounds it
+
+
+@pytest.mark.parametrize("spoil, words", [
+    (_nan_translation, ("NaN", "[1]")),
+    (_scaled_rotation, ("rigid", "[0]")),
+    (_off_axis, ("outside the mesh", "[1]")),
+    (_beyond_open_end, ("outside the mesh", "[2]")),
+], ids=["nan", "non_rigid", "outside", "beyond_open_end"])
+def test_bad_poses(tmp_path, inputs, spoil, words):
+    poses = np.stack(VIEWS)
+    spoil(poses)
     np.save(inputs["poses"], poses)
     message = assert_fails_naming(run_coverage(*inputs.values()), tmp_path,
                                   inputs["poses"].name, "poses")
-    assert "outside the mesh" in message and "[1]" in message
+    assert all(word in message for word in words), message
 
 
 @pytest.mark.parametrize("kind", ["point_cloud", "no_faces"])
@@ -225,16 +229,6 @@ def test_installed_command_exits_non_zero(tmp_path, inputs):
                           timeout=120)
     assert done.returncode == 2
     assert "no_such_mesh.ply" in done.stderr and "Traceback" not in done.stderr
-
-
-def test_camera_beyond_the_open_end(tmp_path, inputs):
-    """On the axis but 3 cm past the open end: no wall surrounds it, so it is outside."""
-    poses = np.stack(VIEWS)
-    poses[2, 2, 3] = -3.0
-    np.save(inputs["poses"], poses)
-    message = assert_fails_naming(run_coverage(*inputs.values()), tmp_path,
-                                  inputs["poses"].name, "poses")
-    assert "outside the mesh" in message and "[2]" in message
 
 
 def test_out_folder_that_does_not_exist(tmp_path, inputs):
