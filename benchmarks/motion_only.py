@@ -19,7 +19,6 @@ import torch
 
 from hybrid.dataset import Procedure, list_procedures
 from learned.config import DepthConfig
-from learned.losses import view_synthesis_loss
 from learned.model import DepthModel, to_tensor
 
 
@@ -63,16 +62,8 @@ def main() -> None:
                  for k in rng.integers(0, len(procs), config.batch_size)]
         frames, depths = map(torch.stack, zip(*(triplet(p, t, gap) for p, t in picks),
                                               strict=True))
-        target = frames[:, 1]
-        motions, Ks = [], []
-        for k in (0, 2):
-            *motion, K = model.pair_motion(target, frames[:, k])
-            motions.append(tuple(motion))
-            Ks.append(K)
-        region = torch.ones(len(picks), 1, *target.shape[-2:])
-        loss = view_synthesis_loss(target, [frames[:, 0], frames[:, 2]], depths[:, 1],
-                                   [depths[:, 0], depths[:, 2]], motions,
-                                   torch.stack(Ks).mean(0), region, config).total
+        region = torch.ones(len(picks), 1, *frames.shape[-2:])
+        loss = model.loss(frames, region, depths).total
         optimizer.zero_grad()
         loss.backward()
         optimizer.step()

@@ -37,10 +37,15 @@ class DepthModel(nn.Module):
         return (rotation[:n], translation[:n], rotation[n:], translation[n:],
                 0.5 * (K[:n] + K[n:]))
 
-    def loss(self, frames: torch.Tensor, region: torch.Tensor) -> LossTerms:
-        """View-synthesis loss of triplets frames (B, 3 frames, 3, H, W): previous, target, next."""
+    def loss(self, frames: torch.Tensor, region: torch.Tensor,
+             depths: torch.Tensor | None = None) -> LossTerms:
+        """View-synthesis loss of triplets frames (B, 3 frames, 3, H, W): previous, target, next.
+
+        depths (B, 3, 1, H, W), if given, replace the depth network (to probe the motion net).
+        """
         batch = frames.shape[0]
-        depths = self.depth(frames.flatten(0, 1)).unflatten(0, (batch, 3))
+        if depths is None:
+            depths = self.depth(frames.flatten(0, 1)).unflatten(0, (batch, 3))
         target = frames[:, 1]
         motions, intrinsics = [], []
         for k in (0, 2):
