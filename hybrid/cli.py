@@ -221,6 +221,105 @@ def eval_depth(
         out.write_text(json.dumps({"mean": summary, "procedures": results}, indent=1) + "\n")
 
 
+@app.command("train-coverage")
+@_reports_input_errors
+def train_coverage(
+    data: Annotated[list[Path], typer.Option(help="Simulated procedures, or folders of them.")],
+    out: Annotated[Path, typer.Option(help="Run folder: fold models, CV metrics, final model.")],
+    preset: Annotated[str, typer.Option(help="fast (small ResNet on 64x80 depth) or paper "
+                                        "(ResNet-50 at 320x384).")] = "fast",
+    depth_checkpoint: Annotated[Path | None, typer.Option(help="Depth model whose output the "
+                                                          "per-frame net reads (default: the "
+                                                          "shipped one).")] = None,
+    folds: Annotated[int | None, typer.Option(help="Cross-validation folds by procedure "
+                                              "(0: none).")] = None,
+    seed: Annotated[int | None, typer.Option(help="Random seed.")] = None,
+    set_: Annotated[list[str] | None, typer.Option(
+        "--set", help="Override a config field, e.g. --set input_depth=true (see "
+        "learned/config.py CoverageConfig).")] = None,
+):
+    """Train the per-frame then the per-segment coverage network, with k-fold CV; resumes."""
+    from learned.config import COVERAGE_PRESETS, coverage_config, parse_overrides
+    from learned.coverage_train import train_coverage as run
+
+    try:
+        config = coverage_config(preset, folds=folds, seed=seed,
+                                 **parse_overrides(set_ or [], COVERAGE_PRESETS["fast"]))
+    except ValueError as err:
+        raise InputError(str(err)) from err
+    typer.echo(str(run(data, out, config, depth_checkpoint or _shipped_checkpoint())))
+
+
+@app.command("eval-coverage")
+@_reports_input_errors
+def eval_coverage(
+    data: Annotated[list[Path], typer.Option(help="Simulated procedures, or folders of them.")],
+    out: Annotated[Path, typer.Option(help="Folder for metrics.json and scatter.png.")],
+    model: Annotated[Path | None, typer.Option(help="Coverage model (default: the shipped "
+                                               "one).")] = None,
+    depth_checkpoint: Annotated[Path | None, typer.Option(help="Depth model (default: the "
+                                                          "shipped one).")] = None,
+):
+    """Per-frame MAE per Δ pair, per-segment MAE and 3-class accuracy, with scatter plots."""
+    from learned.coverage_eval import coverage_metrics, format_table, scatter_plots
+    from learned.coverage_nets import load_coverage_model
+    from learned.coverage_train import evaluate, load_samples
+
+    model_path = model or _shipped_coverage()
+    net = load_coverage_model(model_path)
+    samples = load_samples(data, net.config, depth_checkpoint or _shipped_checkpoint(),
+                           progress=True)
+    predictions = evaluate(net, samples)
+    metrics = coverage_metrics(predictions)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "metrics.json").write_text(json.dumps(
+        {"model": str(model_path), "data": [str(p) for p in data], **metrics}, indent=1) + "\n")
+    scatter_plots(predictions, out / "scatter.png", f"{model_path.name} on "
+                  f"{', '.join(p.name for p in data)}")
+    typer.echo(format_table({model_path.stem: metrics}))
+
+
+@app.command()
+@_reports_input_errors
+def adapt(
+    target: Annotated[list[Path], typer.Option(help="Unlabelled videos, image folders or "
+                                               "procedures (RGB only), or folders of them.")],
+    out: Annotated[Path, typer.Option(help="Where to write the adapted model.")],
+    model: Annotated[Path | None, typer.Option(help="Coverage model (default: the shipped "
+                                               "one).")] = None,
+    depth_checkpoint: Annotated[Path | None, typer.Option(help="Depth model (default: the "
+                                                          "shipped one).")] = None,
+):
+    """Fit CORAL on unlabelled target videos and save the adapted coverage model."""
+    from learned.coral import adapt as fit
+    from learned.coverage_data import video_inputs
+    from learned.coverage_nets import load_coverage_model
+    from learned.frames import open_sequence
+    from learned.model import load_depth_model
+    from learned.train import expand_inputs
+
+    net = load_coverage_model(model or _shipped_coverage())
+    depth_model = load_depth_model(depth_checkpoint or _shipped_checkpoint())
+    size = (depth_model.config.height, depth_model.config.width)
+    features = [net.frame_outputs(video_inputs(open_sequence(p, size), depth_model, net.config,
+                                               progress=True))[1]
+                for p in expand_inputs(target)]
+    windows = fit(net, features, net.config.segment_stride)
+    if not out.parent.is_dir():
+        raise InputError(f"folder for --out does not exist: {out.parent}")
+    net.save(out)
+    typer.echo(f"CORAL fitted on {windows} target windows: {out}")
+
+
+def _shipped_coverage() -> Path:
+    from learned.checkpoints import SHIPPED_COVERAGE
+
+    if not SHIPPED_COVERAGE.is_file():
+        raise InputError(f"no shipped coverage model at {SHIPPED_COVERAGE}; train one with "
+                         f"`c2d2 train-coverage` and pass --model")
+    return SHIPPED_COVERAGE
+
+
 def _shipped_checkpoint() -> Path:
     from learned.checkpoints import SHIPPED_DEPTH
 

@@ -242,54 +242,70 @@ def compute_coverage(
     delta_pairs: tuple[tuple[float, float], ...] = DELTA_PAIRS_CM,
     progress: bool = False,
     poses_name: str = "poses",
+    segment_stride: int | None = None,
 ) -> CoverageResult:
     """Per-frame coverage for every frame and per-segment coverage for full segments.
 
-    Frames after the last full segment get per-frame values but no segment. poses_name names
-    the poses in error messages (e.g. their file).
+    Segments start every segment_stride frames (default: segment_frames, i.e. back to back;
+    a smaller stride gives overlapping windows, e.g. as training samples). Frames after the
+    last full segment get per-frame values but no segment. poses_name names the poses in error
+    messages (e.g. their file).
     """
     poses = check_poses(poses, name=poses_name)
-    if segment_frames < 1:
-        raise InputError(f"segment length must be at least 1 frame, got {segment_frames}")
+    stride = segment_frames if segment_stride is None else segment_stride
+    if segment_frames < 1 or stride < 1:
+        raise InputError(f"segment length and stride must be at least 1 frame, got "
+                         f"{segment_frames} and {stride}")
     oracle = VisibilityOracle(mesh, camera)
     oracle.check_inside(poses[:, :3, 3], lumen, name=poses_name)
     vertex_ell, _ = lumen.project(mesh.vertices)
     order = np.argsort(vertex_ell)
     sorted_ell = vertex_ell[order]
+    area_below = np.concatenate([[0.0], np.cumsum(mesh.vertex_area[order])])
+
+    def area_between(lo: float, hi: float) -> float:
+        """Area of the vertices with lo <= ℓ* <= hi."""
+        return area_below[np.searchsorted(sorted_ell, hi, side="right")] - area_below[
+            np.searchsorted(sorted_ell, lo, side="left")]
+
+    def coverage_of(seen: np.ndarray, lo: float, hi: float) -> float | None:
+        total = area_between(lo, hi)
+        ell = vertex_ell[seen]
+        inside = seen[(ell >= lo) & (ell <= hi)]
+        return float(mesh.vertex_area[inside].sum() / total) if total > 0 else None
+
     camera_ell, _ = lumen.project(poses[:, :3, 3])
+    n = len(poses)
+    windows = [(s, s + segment_frames) for s in range(0, n - segment_frames + 1, stride)]
+    # Each frame is tested against the ℓ* band of its own V and of every window holding it.
     lo = min(d0 for d0, _ in delta_pairs)
     hi = max(d1 for _, d1 in delta_pairs)
+    band_lo, band_hi = camera_ell + lo, camera_ell + hi
+    for start, stop in windows:
+        band_lo[start:stop] = np.minimum(band_lo[start:stop], camera_ell[start:stop].min() + lo)
+        band_hi[start:stop] = np.maximum(band_hi[start:stop], camera_ell[start:stop].max() + hi)
 
-    n = len(poses)
     per_frame = {pair_key(p): [None] * n for p in delta_pairs}
     segments = []
-    chunks = [(s, min(s + segment_frames, n)) for s in range(0, n, segment_frames)]
-    bar = tqdm(total=n, desc="coverage", unit="frame", disable=not progress)
-    for start, stop in chunks:
-        e_min, e_max = camera_ell[start:stop].min(), camera_ell[start:stop].max()
-        a = np.searchsorted(sorted_ell, e_min + lo, side="left")
-        b = np.searchsorted(sorted_ell, e_max + hi, side="right")
+    seen_by_frame: dict[int, np.ndarray] = {}  # only frames of windows not yet finished
+    for f in tqdm(range(n), desc="coverage", unit="frame", disable=not progress):
+        a = np.searchsorted(sorted_ell, band_lo[f], side="left")
+        b = np.searchsorted(sorted_ell, band_hi[f], side="right")
         ids = order[a:b]
-        ell, area = vertex_ell[ids], mesh.vertex_area[ids]
-        seen = np.zeros(ids.size, dtype=bool)
-        for f in range(start, stop):
-            vis = oracle.visible(poses[f], ids)
-            seen |= vis
-            for pair in delta_pairs:
-                in_v = (ell >= camera_ell[f] + pair[0]) & (ell <= camera_ell[f] + pair[1])
-                per_frame[pair_key(pair)][f] = _ratio(area, vis, in_v)
-            bar.update(1)
-        if stop - start == segment_frames:
-            coverage = {}
-            for pair in delta_pairs:
-                in_v = (ell >= e_min + pair[0]) & (ell <= e_max + pair[1])
-                coverage[pair_key(pair)] = _ratio(area, seen, in_v)
+        seen = ids[oracle.visible(poses[f], ids)]
+        for d0, d1 in delta_pairs:
+            per_frame[pair_key((d0, d1))][f] = coverage_of(seen, camera_ell[f] + d0,
+                                                            camera_ell[f] + d1)
+        seen_by_frame[f] = seen
+        while len(segments) < len(windows) and windows[len(segments)][1] == f + 1:
+            start, stop = windows[len(segments)]
+            union = np.unique(np.concatenate([seen_by_frame[k] for k in range(start, stop)]))
+            e_min, e_max = camera_ell[start:stop].min(), camera_ell[start:stop].max()
+            coverage = {pair_key((d0, d1)): coverage_of(union, e_min + d0, e_max + d1)
+                        for d0, d1 in delta_pairs}
             segments.append(SegmentCoverage(len(segments), start, stop, float(e_min),
                                             float(e_max), coverage))
-    bar.close()
+        keep_from = windows[len(segments)][0] if len(segments) < len(windows) else f + 1
+        for k in [k for k in seen_by_frame if k < keep_from]:
+            del seen_by_frame[k]
     return CoverageResult(list(delta_pairs), segment_frames, per_frame, segments)
-
-
-def _ratio(area: np.ndarray, seen: np.ndarray, in_v: np.ndarray) -> float | None:
-    total = area[in_v].sum()
-    return float(area[in_v & seen].sum() / total) if total > 0 else None

@@ -96,9 +96,10 @@ def depth_config(preset: str, **overrides) -> DepthConfig:
     return replace(DEPTH_PRESETS[preset], **{k: v for k, v in overrides.items() if v is not None})
 
 
-def parse_overrides(items: list[str]) -> dict:
-    """{'pair_gap_s': 0.6} from ['pair_gap_s=0.6'], each value parsed as its field's type."""
-    types = {f.name: type(getattr(DEPTH_PRESETS["fast"], f.name)) for f in fields(DepthConfig)}
+def parse_overrides(items: list[str], defaults=DEPTH_PRESETS["fast"]) -> dict:
+    """{'pair_gap_s': 0.6} from ['pair_gap_s=0.6'], each value parsed as the type of its field
+    in defaults (a config dataclass)."""
+    types = {f.name: type(getattr(defaults, f.name)) for f in fields(defaults)}
     out = {}
     for item in items:
         key, sep, text = item.partition("=")
@@ -116,3 +117,88 @@ def parse_overrides(items: list[str]) -> dict:
             except ValueError as err:
                 raise ValueError(f"--set {item!r}: {key} takes a {kind.__name__}") from err
     return out
+
+
+@dataclass(frozen=True)
+class CoverageConfig:
+    """The two-stage coverage networks (paper section 4.2) and their training."""
+
+    preset: str = "fast"
+    """Name of the preset this config came from."""
+    height: int = 64
+    """Per-frame network input height (depth images are resized to it)."""
+    width: int = 80
+    """Per-frame network input width."""
+    frame_channels: tuple[int, ...] = (16, 32, 64, 96, 128)
+    """Per-frame encoder: stem channels, then the four residual stages; the last is the
+    feature size F."""
+    frame_blocks: tuple[int, ...] = (1, 1, 1, 1)
+    """Residual blocks per per-frame encoder stage."""
+    bottleneck: bool = False
+    """Bottleneck residual blocks (ResNet-50) instead of basic ones."""
+    input_depth: str = "predicted"
+    """Per-frame input: 'predicted' (the depth network's output on the RGB, as at inference)
+    or 'true' (the simulator's depth, an ablation)."""
+    segment_frames: int = 300
+    """Frames per segment (T)."""
+    segment_stride: int = 30
+    """Start-to-start frames of the overlapping training windows."""
+    segment_channels: tuple[int, ...] = (8, 16, 16, 16, 16, 16)
+    """Output channels of the per-segment network's six 1-D convolutions."""
+    segment_kernels: tuple[int, ...] = (1, 5, 5, 5, 5, 5)
+    """Their kernel sizes (frames)."""
+    segment_strides: tuple[int, ...] = (1, 2, 2, 2, 2, 2)
+    """Their temporal strides."""
+    frame_epochs: int = 4
+    """Stage 1 passes over the training frames."""
+    frame_batch: int = 64
+    """Stage 1 batch size (frames)."""
+    frame_lr: float = 1e-3
+    """Stage 1 Adam learning rate (cosine-annealed)."""
+    segment_epochs: int = 150
+    """Stage 2 passes over the training windows."""
+    segment_batch: int = 32
+    """Stage 2 batch size (windows)."""
+    segment_lr: float = 2e-3
+    """Stage 2 Adam learning rate (cosine-annealed)."""
+    weight_decay: float = 1e-4
+    """AdamW weight decay of both stages."""
+    folds: int = 5
+    """Cross-validation folds, split by procedure (0 or 1: no cross-validation)."""
+    seed: int = 0
+    """Random seed (initialisation, sampling, fold split)."""
+
+    @property
+    def feature_size(self) -> int:
+        """F: length of a per-frame feature vector."""
+        return self.frame_channels[-1]
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, data: dict) -> CoverageConfig:
+        known = {f.name for f in fields(cls)}
+        values = {k: tuple(v) if isinstance(v, list) else v for k, v in data.items() if k in known}
+        return cls(**values)
+
+
+COVERAGE_PRESETS: dict[str, CoverageConfig] = {
+    "fast": CoverageConfig(),
+    "paper": CoverageConfig(
+        preset="paper", height=320, width=384,
+        frame_channels=(64, 256, 512, 1024, 2048), frame_blocks=(3, 4, 6, 3), bottleneck=True,
+        frame_epochs=20, frame_batch=32, frame_lr=3e-4,
+    ),
+}
+"""`fast`: a small ResNet on 64x80 depth, F = 128. `paper`: ResNet-50 at 320x384, F = 2048."""
+
+
+def coverage_config(preset: str, **overrides) -> CoverageConfig:
+    if preset not in COVERAGE_PRESETS:
+        raise ValueError(f"unknown preset {preset!r}; choose one of {sorted(COVERAGE_PRESETS)}")
+    config = replace(COVERAGE_PRESETS[preset],
+                     **{k: v for k, v in overrides.items() if v is not None})
+    if config.input_depth not in ("predicted", "true"):
+        raise ValueError(f"input_depth must be 'predicted' or 'true', got {config.input_depth!r}")
+    return config

@@ -63,14 +63,51 @@ def infer_sequence(model: DepthModel, seq: FrameSequence, batch: int = 16,
         depth.append(model.depth(images)[:, 0].numpy())
         chain = images if previous is None else torch.cat([previous, images])
         if len(chain) > 1:
-            r_ab, t_ab, r_ba, t_ba, K = model.pair_motion(chain[:-1], chain[1:])
-            forward = transform_from(r_ab, t_ab).double()
-            backward = torch.linalg.inv(transform_from(r_ba, t_ba).double())
-            relative.append(_mean_transform(forward, backward).numpy())
+            T, K = _pair_transforms(model, chain[:-1], chain[1:])
+            relative.append(T)
             K_pairs.append(K.numpy())
         previous = images[-1:]
     return DepthOutput(np.concatenate(depth), np.concatenate(relative),
                        np.concatenate(K_pairs).astype(np.float64))
+
+
+@torch.no_grad()
+def relative_poses(model: DepthModel, seq: FrameSequence, gaps: tuple[int, ...], batch: int = 16,
+                   frames: range | None = None, progress: bool = False) -> dict[int, np.ndarray]:
+    """Relative poses of frame pairs (t, t+g) for every gap g, over all frames or the range.
+
+    Returns {g: (M-g, 4, 4) float64}, M the number of frames: entry t maps points of frame t's
+    camera into frame t+g's (fusion.posegraph's input). Each is the mean of the forward and
+    the inverted backward estimate. Frames are decoded once per batch of first frames.
+    """
+    model.eval()
+    frames = range(seq.num_frames) if frames is None else frames
+    if len(frames) < 2:
+        raise InputError(f"{seq.name}: relative poses need at least 2 frames")
+    if not gaps or any(g < 1 for g in gaps):
+        raise InputError(f"relative-pose gaps must be positive frame counts, got {gaps}")
+    relative = {g: [np.empty((0, 4, 4))] for g in gaps}
+    for start in tqdm(range(frames.start, frames.stop, batch), desc=f"motion {seq.name}",
+                      disable=not progress, unit="batch"):
+        stop = min(start + batch + max(gaps), frames.stop)
+        images = to_tensor(np.stack([seq.frame(i) for i in range(start, stop)]))
+        for g in gaps:
+            firsts = min(batch, len(images) - g)
+            if firsts <= 0:
+                continue
+            relative[g].append(_pair_transforms(model, images[:firsts],
+                                                images[g:g + firsts])[0])
+    return {g: np.concatenate(stacks) for g, stacks in relative.items()}
+
+
+def _pair_transforms(model: DepthModel, a: torch.Tensor, b: torch.Tensor
+                     ) -> tuple[np.ndarray, torch.Tensor]:
+    """(B, 4, 4) transforms a -> b, each the mean of the forward and the inverted backward
+    estimate, and the pairs' intrinsics (B, 3, 3)."""
+    r_ab, t_ab, r_ba, t_ba, K = model.pair_motion(a, b)
+    forward = transform_from(r_ab, t_ab).double()
+    backward = torch.linalg.inv(transform_from(r_ba, t_ba).double())
+    return _mean_transform(forward, backward).numpy(), K
 
 
 def _mean_transform(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:

@@ -29,18 +29,41 @@ class BasicBlock(nn.Module):
         return F.relu(self.bn2(self.conv2(out)) + self.shortcut(x))
 
 
-class ResNetEncoder(nn.Module):
-    """ResNet encoder; returns features at strides 2, 4, 8, 16, 32."""
+class Bottleneck(nn.Module):
+    """ResNet-50 bottleneck block: 1x1 reduce to cout/4, 3x3, 1x1 expand, residual."""
 
-    def __init__(self, in_channels: int, channels: tuple[int, ...], blocks: tuple[int, ...]):
+    def __init__(self, cin: int, cout: int, stride: int):
         super().__init__()
+        mid = cout // 4
+        self.body = nn.Sequential(
+            nn.Conv2d(cin, mid, 1, bias=False), nn.BatchNorm2d(mid), nn.ReLU(inplace=True),
+            nn.Conv2d(mid, mid, 3, stride, 1, bias=False), nn.BatchNorm2d(mid),
+            nn.ReLU(inplace=True), nn.Conv2d(mid, cout, 1, bias=False), nn.BatchNorm2d(cout))
+        self.shortcut = nn.Identity() if stride == 1 and cin == cout else nn.Sequential(
+            nn.Conv2d(cin, cout, 1, stride, bias=False), nn.BatchNorm2d(cout))
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return F.relu(self.body(x) + self.shortcut(x))
+
+
+class ResNetEncoder(nn.Module):
+    """ResNet encoder; returns features at strides 2, 4, 8, 16, 32.
+
+    channels: stem, then each stage's output; bottleneck blocks give ResNet-50 with
+    channels (64, 256, 512, 1024, 2048) and blocks (3, 4, 6, 3).
+    """
+
+    def __init__(self, in_channels: int, channels: tuple[int, ...], blocks: tuple[int, ...],
+                 bottleneck: bool = False):
+        super().__init__()
+        block = Bottleneck if bottleneck else BasicBlock
         self.stem = nn.Sequential(nn.Conv2d(in_channels, channels[0], 7, 2, 3, bias=False),
                                   nn.BatchNorm2d(channels[0]), nn.ReLU(inplace=True))
         stages = []
         cin = channels[0]
         for k, (cout, n) in enumerate(zip(channels[1:], blocks, strict=True)):
-            layers = [BasicBlock(cin, cout, 1 if k == 0 else 2)]
-            layers += [BasicBlock(cout, cout, 1) for _ in range(n - 1)]
+            layers = [block(cin, cout, 1 if k == 0 else 2)]
+            layers += [block(cout, cout, 1) for _ in range(n - 1)]
             stages.append(nn.Sequential(*layers))
             cin = cout
         self.stages = nn.ModuleList(stages)

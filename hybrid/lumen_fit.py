@@ -1,0 +1,222 @@
+"""Fit a lumen (centerline + radius profile) to a reconstructed colon surface.
+
+Reads camera-to-world poses (the smoothed trajectory) and surface points (TSDF mesh vertices or
+back-projected depth) in one unit, and returns a `FittedLumen` parametrised by arc length.
+
+1. Stations: the camera centres, smoothed over time, resampled every `spacing` along their
+   path; a station closer than spacing/2 to an earlier one is a return visit and is dropped.
+   The video is taken to be a withdrawal, so ℓ grows from where the camera ends towards where
+   it started (towards the cecum, where the look-ahead Δ1 of the coverage definition points).
+   The path is continued straight on beyond its deep end, to cover the look-ahead band, and a
+   little beyond its other end.
+2. Cross-sections: at each station, the surface points in a slab one spacing thick normal to
+   the path are projected into its plane and fitted with a circle (algebraic fit, outliers
+   beyond 3 MADs trimmed); a section whose points cover less than half of the circle is
+   skipped and filled in from its neighbours.
+3. The centres and radii are smoothed along the stations; the path is replaced by the fitted
+   centreline and steps 2-3 run again.
+Spacing, slab and reach scale with a first radius estimate (median distance from the surface to
+the camera path), so the fit works in any unit, e.g. before the metric scale is known.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from scipy.ndimage import gaussian_filter1d
+from scipy.spatial import cKDTree
+
+from hybrid.types import InputError, check_poses
+
+
+@dataclass(frozen=True)
+class LumenFitConfig:
+    """Sizes of the fit, as fractions of the first radius estimate r0 unless said otherwise."""
+
+    spacing: float = 0.25
+    """Distance between stations (and slab thickness), × r0."""
+    reach: float = 3.0
+    """Surface points farther than this from a station are ignored, × r0."""
+    path_smoothing_s: float = 1.0
+    """Gaussian smoothing of the camera centres over time, in seconds."""
+    smoothing_stations: float = 2.0
+    """Gaussian smoothing of the fitted centres and radii, in stations."""
+    min_points: int = 30
+    """Fewest surface points for a cross-section fit."""
+    min_arc_bins: int = 6
+    """Fewest occupied 30° sectors (of 12) for a cross-section fit: half a circle."""
+    iterations: int = 2
+    """Fit passes; each pass after the first uses the previous centreline as the path."""
+    extend: float = 3.5
+    """The path is continued this far (× r0) beyond its end in the direction the cameras look,
+    where the look-ahead band of the coverage definition lies."""
+    extend_back: float = 1.0
+    """... and this far (× r0) beyond its other end, which smoothing would otherwise shorten."""
+
+
+@dataclass
+class FittedLumen:
+    """Centreline points (M, 3) from ℓ = 0 and the wall radius (M,) at each, in one unit."""
+
+    points: np.ndarray
+    radius: np.ndarray
+
+    @property
+    def arclength(self) -> np.ndarray:
+        steps = np.linalg.norm(np.diff(self.points, axis=0), axis=1)
+        return np.concatenate([[0.0], np.cumsum(steps)])
+
+    def scaled(self, factor: float) -> FittedLumen:
+        return FittedLumen(self.points * factor, self.radius * factor)
+
+    def save(self, path: Path) -> None:
+        """lumen.json: points, radius, arclength (written atomically)."""
+        path = Path(path)
+        tmp = path.with_name(path.name + ".tmp")
+        tmp.write_text(json.dumps({"points": self.points.tolist(), "radius": self.radius.tolist(),
+                                   "arclength": self.arclength.tolist()}) + "\n")
+        os.replace(tmp, path)
+
+    @classmethod
+    def load(cls, path: Path) -> FittedLumen:
+        data = json.loads(Path(path).read_text())
+        return cls(np.asarray(data["points"], float), np.asarray(data["radius"], float))
+
+
+def fit_lumen(poses: np.ndarray, surface: np.ndarray, fps: float = 30.0,
+              config: LumenFitConfig = LumenFitConfig(), name: str = "reconstruction"
+              ) -> FittedLumen:
+    """Centreline and radius profile of the surface around the camera path (see module doc)."""
+    poses = check_poses(poses, name=f"{name} poses")
+    surface = np.asarray(surface, dtype=np.float64)
+    if surface.ndim != 2 or surface.shape[1] != 3 or len(surface) < config.min_points:
+        raise InputError(f"{name}: no surface to fit a lumen to ({surface.shape} points); the "
+                         f"reconstruction is empty, check the depth and poses")
+    if not np.isfinite(surface).all():
+        raise InputError(f"{name}: surface points contain NaN or infinite values")
+    centres = gaussian_filter1d(poses[:, :3, 3], config.path_smoothing_s * fps, axis=0,
+                                mode="nearest")
+    r0 = float(np.median(cKDTree(centres).query(surface[:: max(1, len(surface) // 20000)])[0]))
+    if not r0 > 0:
+        raise InputError(f"{name}: the surface lies on the camera path; no lumen to fit")
+    spacing = config.spacing * r0
+    path = _stations(centres, spacing)[::-1]  # a withdrawal: ℓ grows back in time
+    if len(path) < 4:
+        raise InputError(f"{name}: the camera moves {_length(centres):.3g} units, less than a "
+                         f"few cross-sections ({4 * spacing:.3g}); too short for a lumen fit")
+    path = _extended(path, round(config.extend / config.spacing),
+                     round(config.extend_back / config.spacing), spacing)
+    tree = cKDTree(surface)
+    sigma = config.smoothing_stations
+    for _ in range(max(1, config.iterations)):
+        centre, radius = _cross_sections(path, surface, tree, spacing, config.reach * r0, config)
+        lumen = _resample(FittedLumen(gaussian_filter1d(centre, sigma, axis=0, mode="nearest"),
+                                      gaussian_filter1d(radius, sigma, mode="nearest")), spacing)
+        path = lumen.points
+    return lumen
+
+
+def metric_scale(lumen: FittedLumen, typical_radius_cm: float) -> float:
+    """The factor that makes the median fitted radius equal typical_radius_cm."""
+    return typical_radius_cm / float(np.median(lumen.radius))
+
+
+def _length(points: np.ndarray) -> float:
+    return float(np.linalg.norm(np.diff(points, axis=0), axis=1).sum())
+
+
+def _stations(centres: np.ndarray, spacing: float) -> np.ndarray:
+    """Points every `spacing` along the path, first visits only."""
+    steps = np.linalg.norm(np.diff(centres, axis=0), axis=1)
+    ell = np.concatenate([[0.0], np.cumsum(steps)])
+    at = np.arange(0.0, ell[-1], spacing)
+    samples = np.stack([np.interp(at, ell, centres[:, k]) for k in range(3)], axis=1)
+    kept: list[np.ndarray] = []
+    for point in samples:
+        if not kept or np.linalg.norm(np.asarray(kept) - point, axis=1).min() >= 0.5 * spacing:
+            kept.append(point)
+    return np.asarray(kept)
+
+
+def _extended(path: np.ndarray, ahead: int, behind: int, spacing: float) -> np.ndarray:
+    """The path continued straight on by `ahead` stations after its (deep) end and `behind`
+    stations before its start."""
+    k = min(3, len(path) - 1)
+    head, tail = path[0] - path[k], path[-1] - path[-1 - k]
+    head, tail = (d / max(np.linalg.norm(d), 1e-12) for d in (head, tail))
+    before = path[0] + spacing * np.arange(behind, 0, -1)[:, None] * head
+    after = path[-1] + spacing * np.arange(1, ahead + 1)[:, None] * tail
+    return np.vstack([before, path, after])
+
+
+def _tangents(path: np.ndarray) -> np.ndarray:
+    tangent = np.gradient(path, axis=0)
+    return tangent / np.linalg.norm(tangent, axis=1, keepdims=True).clip(1e-12)
+
+
+def _cross_sections(path: np.ndarray, surface: np.ndarray, tree: cKDTree, spacing: float,
+                    reach: float, config: LumenFitConfig) -> tuple[np.ndarray, np.ndarray]:
+    """Circle centre (M, 3) and radius (M,) at each station, gaps filled by interpolation."""
+    tangents = _tangents(path)
+    centre = np.full_like(path, np.nan)
+    radius = np.full(len(path), np.nan)
+    for i, (p, t) in enumerate(zip(path, tangents, strict=True)):
+        near = surface[tree.query_ball_point(p, reach)]
+        offset = near - p
+        near = offset[np.abs(offset @ t) <= 0.5 * spacing]
+        if len(near) < config.min_points:
+            continue
+        u = np.cross(t, [1.0, 0.0, 0.0] if abs(t[0]) < 0.9 else [0.0, 1.0, 0.0])
+        u /= np.linalg.norm(u)
+        v = np.cross(t, u)
+        xy = np.stack([near @ u, near @ v], axis=1)
+        fit = _circle(xy)
+        if fit is None:
+            continue
+        (cx, cy), r = fit
+        angles = np.arctan2(xy[:, 1] - cy, xy[:, 0] - cx)
+        sectors = np.unique(((angles + np.pi) / (np.pi / 6)).astype(int) % 12)
+        if len(sectors) >= config.min_arc_bins:
+            centre[i], radius[i] = p + cx * u + cy * v, r
+    good = np.isfinite(radius)
+    if good.sum() < 2:
+        raise InputError("the reconstruction gives no usable cross-section of the lumen (too "
+                         "few surface points around the camera path); check depth and poses")
+    index = np.arange(len(path))
+    for k in range(3):
+        centre[:, k] = np.interp(index, index[good], centre[good, k])
+    return centre, np.interp(index, index[good], radius[good])
+
+
+def _circle(xy: np.ndarray, rounds: int = 3) -> tuple[np.ndarray, float] | None:
+    """Algebraic (Kåsa) circle fit with outliers beyond 3 MADs trimmed."""
+    keep = np.ones(len(xy), dtype=bool)
+    result = None
+    for _ in range(rounds):
+        pts = xy[keep]
+        if len(pts) < 3:
+            return result
+        A = np.column_stack([pts, np.ones(len(pts))])
+        b = -(pts ** 2).sum(axis=1)
+        (d, e, f), *_ = np.linalg.lstsq(A, b, rcond=None)
+        centre = np.array([-d / 2, -e / 2])
+        r2 = centre @ centre - f
+        if not r2 > 0:
+            return result
+        result = (centre, float(np.sqrt(r2)))
+        residual = np.abs(np.linalg.norm(xy - centre, axis=1) - result[1])
+        mad = np.median(residual[keep]) + 1e-12
+        keep = residual <= 3 * 1.4826 * mad
+    return result
+
+
+def _resample(lumen: FittedLumen, spacing: float) -> FittedLumen:
+    """The lumen resampled every `spacing` of its own arc length."""
+    ell = lumen.arclength
+    at = np.append(np.arange(0.0, ell[-1] - 0.5 * spacing, spacing), ell[-1])
+    return FittedLumen(np.stack([np.interp(at, ell, lumen.points[:, k]) for k in range(3)], 1),
+                       np.interp(at, ell, lumen.radius))

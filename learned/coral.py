@@ -1,0 +1,67 @@
+"""CORAL domain adaptation (Sun, Feng and Saenko 2016) of the per-segment network.
+
+The pooled layer z of the per-segment network (its second-to-last layer) is mapped by
+z -> A (z - μt) + μs with A = Cs^(1/2) Ct^(-1/2), so that on the target domain (unlabelled
+video) its mean and covariance become the synthetic training windows' μs and Cs. Both
+covariances get a small ridge (1e-5 of their mean variance) so that A exists when the target
+has fewer windows than dimensions.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from hybrid.types import InputError
+from learned.coverage_nets import CoverageModel
+
+RIDGE = 1e-5
+"""Relative ridge added to both covariances."""
+
+
+def _power(cov: np.ndarray, exponent: float) -> np.ndarray:
+    """Symmetric matrix power of a positive definite matrix."""
+    values, vectors = np.linalg.eigh(cov)
+    return (vectors * values ** exponent) @ vectors.T
+
+
+def _ridged(cov: np.ndarray) -> np.ndarray:
+    return cov + RIDGE * max(float(np.trace(cov)) / len(cov), 1e-12) * np.eye(len(cov))
+
+
+def coral_transform(source_mean: np.ndarray, source_cov: np.ndarray, target: np.ndarray
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """A and b such that A z + b has the source's mean and covariance over the target rows z."""
+    target = np.asarray(target, dtype=np.float64)
+    if target.ndim != 2 or target.shape[1] != len(source_mean):
+        raise InputError(f"target embeddings must be (n, {len(source_mean)}), got "
+                         f"{target.shape}")
+    if len(target) < 2:
+        raise InputError(f"CORAL needs at least 2 target segments, got {len(target)}; give "
+                         f"more or longer unlabelled videos")
+    if not np.isfinite(target).all():
+        raise InputError("target embeddings contain NaN or infinite values")
+    A = _power(_ridged(np.asarray(source_cov, np.float64)), 0.5) @ _power(
+        _ridged(np.cov(target, rowvar=False)), -0.5)
+    return A, source_mean - A @ target.mean(0)
+
+
+def adapt(model: CoverageModel, target_features: list[np.ndarray], stride: int) -> int:
+    """Fit the model's CORAL transform on windows of unlabelled videos' per-frame features.
+
+    Returns the number of target windows used. Windows start every `stride` frames.
+    """
+    T = model.config.segment_frames
+    starts = [list(range(0, len(f) - T + 1, stride)) for f in target_features]
+    if not any(starts):
+        longest = max((len(f) for f in target_features), default=0)
+        raise InputError(f"CORAL needs target videos of at least {T} frames (one segment); "
+                         f"the longest has {longest}")
+    net = model.segment
+    embedded = np.concatenate([model.segment_embeddings(f, ss).double().numpy()
+                               for f, ss in zip(target_features, starts, strict=True) if ss])
+    A, b = coral_transform(net.source_mean.double().numpy(), net.source_cov.double().numpy(),
+                           embedded)
+    net.coral_matrix.copy_(torch.from_numpy(A).float())
+    net.coral_offset.copy_(torch.from_numpy(b).float())
+    return len(embedded)

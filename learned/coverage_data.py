@@ -1,0 +1,138 @@
+"""Inputs and labels of the coverage networks, per simulated procedure, cached on disk.
+
+The per-frame input is the depth network's output on the procedure's RGB (what inference sees),
+or the simulator's depth for the ablation, normalised by `normalise_depth`. Labels: the
+per-frame coverage of coverage.json for the three Δ pairs, the default-pair coverage of
+overlapping training windows (computed here with the exact ground truth) and of the
+back-to-back segments of coverage.json (used for evaluation).
+
+Cache files sit in the procedure's `cache/` folder, named by what they depend on, and are
+written atomically.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+from tqdm import tqdm
+
+from hybrid.coverage import Lumen, compute_coverage, pair_key
+from hybrid.dataset import Procedure
+from hybrid.types import InputError
+from learned.config import CoverageConfig
+from learned.coverage_nets import normalise_depth
+from learned.frames import FrameSequence, open_sequence
+from learned.model import DepthModel, to_tensor
+
+
+@dataclass
+class ProcedureSamples:
+    """Everything the coverage networks train and evaluate on, for one procedure."""
+
+    name: str
+    inputs: np.ndarray
+    """(N, 1, h, w) float16 normalised depth."""
+    frame_labels: np.ndarray
+    """(N, 3) float32 per-frame coverage per Δ pair, NaN where undefined."""
+    window_starts: np.ndarray
+    """(W,) first frames of the overlapping training windows."""
+    window_labels: np.ndarray
+    """(W,) their default-pair coverage (NaN where undefined)."""
+    segment_starts: np.ndarray
+    """(S,) first frames of the back-to-back segments of coverage.json."""
+    segment_labels: np.ndarray
+    """(S,) their default-pair coverage."""
+
+
+@torch.no_grad()
+def predicted_depth(model: DepthModel, seq: FrameSequence, batch: int = 32,
+                    progress: bool = False) -> np.ndarray:
+    """(N, H, W) depth of every frame of seq at the depth network's size."""
+    model.eval()
+    out = []
+    for start in tqdm(range(0, seq.num_frames, batch), desc=f"depth {Path(seq.name).name}",
+                      unit="batch", disable=not progress):
+        ids = range(start, min(start + batch, seq.num_frames))
+        out.append(model.depth(to_tensor(np.stack([seq.frame(i) for i in ids])))[:, 0].numpy())
+    return np.concatenate(out)
+
+
+def video_inputs(seq: FrameSequence, depth_model: DepthModel, config: CoverageConfig,
+                 progress: bool = False) -> np.ndarray:
+    """Normalised per-frame inputs (N, 1, h, w) of any frame sequence, from predicted depth."""
+    depth = predicted_depth(depth_model, seq, progress=progress)
+    return normalise_depth(depth, seq.region, (config.height, config.width), name=seq.name)
+
+
+def procedure_samples(path: Path, config: CoverageConfig, depth_model: DepthModel | None,
+                      depth_tag: str, progress: bool = False) -> ProcedureSamples:
+    """Inputs and labels of one simulated procedure (from its cache when present).
+
+    depth_tag names the depth model (e.g. a hash of its checkpoint) in the cache file name.
+    """
+    proc = Procedure.open(path)
+    cache = proc.path / "cache"
+    size = f"{config.height}x{config.width}"
+    if config.input_depth == "true":
+        name = f"input-true-{size}.npy"
+    else:
+        name = f"input-{depth_tag}-{size}.npy"
+    inputs = _cached(cache / name, lambda: _inputs(proc, config, depth_model, progress))
+    T, stride = config.segment_frames, config.segment_stride
+    windows = _cached(cache / f"windows-{T}-{stride}.npy",
+                      lambda: _window_labels(proc, T, stride, progress))
+    truth = proc.coverage
+    if truth.segment_frames != T:
+        raise InputError(f"{proc.path}: its segments are {truth.segment_frames} frames, the "
+                         f"coverage networks' are {T}")
+    labels = np.array([[np.nan if v is None else v for v in truth.per_frame[pair_key(p)]]
+                       for p in truth.delta_pairs], dtype=np.float32).T
+    return ProcedureSamples(
+        name=f"{proc.path.parent.name}/{proc.path.name}", inputs=inputs, frame_labels=labels,
+        window_starts=windows[:, 0].astype(int), window_labels=windows[:, 1],
+        segment_starts=np.array([s.start for s in truth.segments], dtype=int),
+        segment_labels=truth.segment_labels())
+
+
+def file_tag(path: Path) -> str:
+    """First 12 hex digits of a file's SHA-256."""
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()[:12]
+
+
+def _inputs(proc: Procedure, config: CoverageConfig, depth_model: DepthModel | None,
+            progress: bool) -> np.ndarray:
+    if config.input_depth == "true":
+        depth = np.stack([proc.depth(i) for i in range(proc.num_frames)])
+        region = np.ones(depth.shape[1:], dtype=bool)
+        return normalise_depth(depth, region, (config.height, config.width),
+                               name=str(proc.path)).astype(np.float16)
+    if depth_model is None:
+        raise InputError("predicted-depth inputs need a depth model")
+    size = (depth_model.config.height, depth_model.config.width)
+    return video_inputs(open_sequence(proc.path, size), depth_model, config,
+                        progress).astype(np.float16)
+
+
+def _window_labels(proc: Procedure, frames: int, stride: int, progress: bool) -> np.ndarray:
+    """(W, 2): start frame and default-pair coverage of every overlapping window."""
+    result = compute_coverage(proc.mesh(), Lumen(proc.lumen), proc.poses, proc.camera,
+                              frames, progress=progress, segment_stride=stride)
+    return np.array([[s.start, np.nan if s.coverage[pair_key(result.default_pair)] is None
+                      else s.coverage[pair_key(result.default_pair)]] for s in result.segments]
+                    ).reshape(-1, 2)
+
+
+def _cached(path: Path, make) -> np.ndarray:
+    if path.is_file():
+        return np.load(path)
+    array = make()
+    path.parent.mkdir(exist_ok=True)
+    tmp = path.with_name(path.name + ".tmp.npy")
+    np.save(tmp, array)
+    os.replace(tmp, path)
+    return array

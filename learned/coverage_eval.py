@@ -1,0 +1,101 @@
+"""Metrics and plots of predicted against true coverage (paper section 5.2)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from hybrid.coverage import DELTA_PAIRS_CM, pair_key
+
+CLASS_EDGES = (0.4, 0.8)
+"""3-class bins: [0, 0.4) mostly not covered, [0.4, 0.8) partial, [0.8, 1] mostly covered."""
+
+
+def three_class(coverage: np.ndarray) -> np.ndarray:
+    """0, 1 or 2 per coverage value."""
+    return np.digitize(np.asarray(coverage), CLASS_EDGES)
+
+
+@dataclass
+class Predictions:
+    """Pooled predictions and truth over procedures (per-frame (N, 3) per Δ pair; segments)."""
+
+    frame_pred: list[np.ndarray] = field(default_factory=list)
+    frame_true: list[np.ndarray] = field(default_factory=list)
+    segment_pred: list[np.ndarray] = field(default_factory=list)
+    segment_true: list[np.ndarray] = field(default_factory=list)
+
+    def add(self, frame_pred, frame_true, segment_pred, segment_true) -> None:
+        self.frame_pred.append(frame_pred)
+        self.frame_true.append(frame_true)
+        self.segment_pred.append(segment_pred)
+        self.segment_true.append(segment_true)
+
+    def arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        return (np.concatenate(self.frame_pred), np.concatenate(self.frame_true),
+                np.concatenate(self.segment_pred), np.concatenate(self.segment_true))
+
+
+def coverage_metrics(predictions: Predictions) -> dict:
+    """Per-frame MAE per Δ pair, per-segment MAE, bias and 3-class accuracy, with counts."""
+    frame_pred, frame_true, seg_pred, seg_true = predictions.arrays()
+    out: dict = {}
+    for k, pair in enumerate(DELTA_PAIRS_CM):
+        ok = np.isfinite(frame_true[:, k])
+        out[f"frame_mae_{pair_key(pair)}"] = float(np.abs(frame_pred[ok, k] - frame_true[ok, k])
+                                                   .mean())
+    out["frames"] = int(np.isfinite(frame_true).any(axis=1).sum())
+    ok = np.isfinite(seg_true)
+    error = seg_pred[ok] - seg_true[ok]
+    out["segment_mae"] = float(np.abs(error).mean()) if ok.any() else float("nan")
+    out["segment_bias"] = float(error.mean()) if ok.any() else float("nan")
+    out["segment_3class_accuracy"] = float(
+        (three_class(seg_pred[ok]) == three_class(seg_true[ok])).mean()) if ok.any() else float(
+        "nan")
+    out["segments"] = int(ok.sum())
+    return out
+
+
+def format_table(rows: dict[str, dict]) -> str:
+    """One line per named metrics dict."""
+    keys = [f"frame_mae_{pair_key(p)}" for p in DELTA_PAIRS_CM] + [
+        "segment_mae", "segment_bias", "segment_3class_accuracy", "segments"]
+    head = f"{'':18s}" + "".join(f"{k.replace('segment_', 'seg_'):>16.16s}" for k in keys)
+    lines = [head]
+    for name, m in rows.items():
+        lines.append(f"{name:18.18s}" + "".join(f"{m[k]:16.4f}" if isinstance(m[k], float)
+                                                 else f"{m[k]:16d}" for k in keys))
+    return "\n".join(lines)
+
+
+def scatter_plots(predictions: Predictions, out: Path, title: str) -> Path:
+    """Predicted against true coverage: one panel per Δ pair (frames) and one for segments."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    frame_pred, frame_true, seg_pred, seg_true = predictions.arrays()
+    fig, axes = plt.subplots(1, 4, figsize=(16, 4.2))
+    panels = [(frame_true[:, k], frame_pred[:, k], f"per frame, Δ = {pair_key(p)} cm", 2)
+              for k, p in enumerate(DELTA_PAIRS_CM)]
+    panels.append((seg_true, seg_pred, "per segment (default Δ)", 12))
+    for ax, (truth, pred, name, size) in zip(axes, panels, strict=True):
+        ok = np.isfinite(truth)
+        ax.scatter(truth[ok], pred[ok], s=size, alpha=0.3 if size < 5 else 0.7, lw=0)
+        ax.plot([0, 1], [0, 1], "k--", lw=1)
+        for edge in CLASS_EDGES:
+            ax.axvline(edge, color="0.8", lw=0.8)
+            ax.axhline(edge, color="0.8", lw=0.8)
+        mae = np.abs(pred[ok] - truth[ok]).mean() if ok.any() else float("nan")
+        ax.set(xlim=(0, 1), ylim=(0, 1), xlabel="true coverage", ylabel="predicted coverage",
+               title=f"{name}\nMAE {mae:.3f}, n = {ok.sum()}")
+        ax.set_aspect("equal")
+    fig.suptitle(title)
+    fig.tight_layout()
+    out = Path(out)
+    fig.savefig(out, dpi=90)
+    plt.close(fig)
+    return out

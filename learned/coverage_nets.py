@@ -1,0 +1,174 @@
+"""The two-stage coverage networks (paper section 4.2) and the rule that normalises their input.
+
+Stage 1, `FrameNet`: one depth image -> coverage of that frame for the three (Δ0, Δ1) pairs;
+its penultimate layer (global average of the last ResNet stage) is the frame's feature vector.
+Stage 2, `SegmentNet`: the T x F features of a segment -> six 1-D convolutions -> average over
+time -> an affine CORAL transform (identity until adapted) -> a fully connected layer -> one
+coverage in [0, 1].
+
+Depth is known only up to scale, so each depth map is normalised by its own median over the
+image region and passed as log(depth / median): 0 at the median depth, symmetric in near and
+far, and 0 outside the region.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+import torch
+from torch import nn
+
+from hybrid.coverage import DELTA_PAIRS_CM
+from hybrid.types import InputError
+from learned.checkpoint import load_modules, read_checkpoint, save_checkpoint
+from learned.config import CoverageConfig
+from learned.nets import ResNetEncoder
+
+
+def normalise_depth(depth: np.ndarray, region: np.ndarray, size: tuple[int, int],
+                    name: str = "depth") -> np.ndarray:
+    """(N, H, W) depth and (H, W) bool region -> (N, 1, h, w) float32 per-frame net input."""
+    depth = np.asarray(depth, dtype=np.float32)
+    if depth.ndim != 3 or depth.shape[1:] != region.shape:
+        raise InputError(f"{name}: expected (N, H, W) depth maps of the region's size "
+                         f"{region.shape}, got {depth.shape}")
+    inside = depth[:, region]
+    bad = ~np.isfinite(inside) | (inside <= 0)
+    if bad.any():
+        frames = np.flatnonzero(bad.any(axis=1))[:10].tolist()
+        raise InputError(f"{name}: NaN, infinite or non-positive depth inside the image region "
+                         f"in frames {frames}; recompute the depth")
+    median = np.median(inside, axis=1)
+    logs = np.log(np.where(region, depth, median[:, None, None]) / median[:, None, None])
+    height, width = size
+    small = [cv2.resize(d, (width, height), interpolation=cv2.INTER_AREA) for d in logs]
+    return np.stack(small)[:, None].astype(np.float32)
+
+
+class FrameNet(nn.Module):
+    """Normalised depth (B, 1, h, w) -> per-frame coverage (B, 3); features() gives (B, F)."""
+
+    def __init__(self, config: CoverageConfig):
+        super().__init__()
+        self.encoder = ResNetEncoder(1, config.frame_channels, config.frame_blocks,
+                                     config.bottleneck)
+        self.head = nn.Linear(config.feature_size, len(DELTA_PAIRS_CM))
+
+    def features(self, depth: torch.Tensor) -> torch.Tensor:
+        return self.encoder(depth)[-1].mean(dim=(2, 3))
+
+    def forward(self, depth: torch.Tensor) -> torch.Tensor:
+        return torch.sigmoid(self.head(self.features(depth)))
+
+
+class SegmentNet(nn.Module):
+    """Per-frame features (B, T, F) -> segment coverage (B,) in [0, 1]."""
+
+    def __init__(self, config: CoverageConfig):
+        super().__init__()
+        size = config.feature_size
+        self.register_buffer("feature_mean", torch.zeros(size))
+        self.register_buffer("feature_std", torch.ones(size))
+        layers: list[nn.Module] = []
+        cin = size
+        for cout, kernel, stride in zip(config.segment_channels, config.segment_kernels,
+                                        config.segment_strides, strict=True):
+            layers += [nn.Conv1d(cin, cout, kernel, stride, padding=kernel // 2), nn.ReLU()]
+            cin = cout
+        self.convs = nn.Sequential(*layers)
+        # CORAL (Sun et al. 2016): z -> A z + b on the pooled layer; identity until adapted.
+        # source_mean/source_cov: that layer's statistics on the synthetic training windows.
+        self.register_buffer("coral_matrix", torch.eye(cin))
+        self.register_buffer("coral_offset", torch.zeros(cin))
+        self.register_buffer("source_mean", torch.zeros(cin))
+        self.register_buffer("source_cov", torch.eye(cin))
+        self.fc = nn.Linear(cin, 1)
+
+    def embed(self, features: torch.Tensor) -> torch.Tensor:
+        """The second-to-last layer: (B, T, F) -> (B, C), before the CORAL transform."""
+        x = ((features - self.feature_mean) / self.feature_std).transpose(1, 2)
+        return self.convs(x).mean(dim=2)
+
+    def head(self, embedding: torch.Tensor) -> torch.Tensor:
+        """CORAL transform and the final layer: (B, C) -> (B,)."""
+        adapted = embedding @ self.coral_matrix.T + self.coral_offset
+        return torch.sigmoid(self.fc(adapted))[:, 0]
+
+    def forward(self, features: torch.Tensor) -> torch.Tensor:
+        return self.head(self.embed(features))
+
+
+def count_parameters(module: nn.Module) -> int:
+    """Trainable parameters (buffers such as the CORAL transform are not counted)."""
+    return sum(p.numel() for p in module.parameters() if p.requires_grad)
+
+
+class CoverageModel(nn.Module):
+    """Both stages with their config; predicts from normalised depth or from features."""
+
+    def __init__(self, config: CoverageConfig):
+        super().__init__()
+        self.config = config
+        self.frame = FrameNet(config)
+        self.segment = SegmentNet(config)
+
+    @torch.no_grad()
+    def frame_outputs(self, inputs: np.ndarray, batch: int = 256
+                      ) -> tuple[np.ndarray, np.ndarray]:
+        """(N, 1, h, w) normalised depth -> per-frame coverage (N, 3) and features (N, F)."""
+        expected = (1, self.config.height, self.config.width)
+        if inputs.ndim != 4 or inputs.shape[1:] != expected:
+            raise InputError(f"per-frame input must be (N, {expected}) normalised depth for the "
+                             f"{self.config.preset!r} preset, got {inputs.shape}")
+        self.eval()
+        coverage, features = [], []
+        for start in range(0, len(inputs), batch):
+            x = torch.from_numpy(np.ascontiguousarray(inputs[start:start + batch],
+                                                      dtype=np.float32))
+            f = self.frame.features(x)
+            features.append(f.numpy())
+            coverage.append(torch.sigmoid(self.frame.head(f)).numpy())
+        return np.concatenate(coverage), np.concatenate(features)
+
+    @torch.no_grad()
+    def segment_embeddings(self, features: np.ndarray, starts: list[int], batch: int = 256
+                           ) -> torch.Tensor:
+        """The per-segment network's pooled layer (S, C) for the windows [s, s + T) of one
+        video's (N, F) features."""
+        T, F = self.config.segment_frames, self.config.feature_size
+        if features.ndim != 2 or features.shape[1] != F:
+            raise InputError(f"features must be (N, {F}) for the {self.config.preset!r} preset, "
+                             f"got {features.shape}")
+        if len(features) < T:
+            raise InputError(f"a segment needs {T} frames, but the video has {len(features)}")
+        if any(s < 0 or s + T > len(features) for s in starts):
+            raise InputError(f"segment windows must lie within the {len(features)} frames")
+        self.eval()
+        chunks = [np.stack([features[s:s + T] for s in starts[k:k + batch]]).astype(np.float32)
+                  for k in range(0, len(starts), batch)]
+        return torch.cat([self.segment.embed(torch.from_numpy(c)) for c in chunks]) if chunks \
+            else torch.zeros(0, self.segment.fc.in_features)
+
+    @torch.no_grad()
+    def segment_outputs(self, features: np.ndarray, starts: list[int]) -> np.ndarray:
+        """Coverage (S,) of the windows [s, s + T) of one video's (N, F) features."""
+        embedded = self.segment_embeddings(features, starts)
+        return self.segment.head(embedded).numpy().astype(np.float64)
+
+    def save(self, path: Path, step: int = 0) -> None:
+        save_checkpoint(path, {"frame": self.frame, "segment": self.segment},
+                        self.config.to_dict(), step, kind="coverage")
+
+
+def load_coverage_model(path: Path, preset: str | None = None) -> CoverageModel:
+    """A trained coverage model in eval mode; checks its preset if one is given."""
+    tensors, meta = read_checkpoint(path, kind="coverage")
+    config = CoverageConfig.from_dict(meta["config"])
+    if preset is not None and config.preset != preset:
+        raise InputError(f"{path} is a {config.preset!r}-preset coverage model, but the "
+                         f"{preset!r} preset was asked for")
+    model = CoverageModel(config)
+    load_modules(tensors, {"frame": model.frame, "segment": model.segment}, path)
+    return model.eval()

@@ -1,0 +1,234 @@
+"""Training of the coverage networks: stage 1 (per frame), then stage 2 (per segment), with
+k-fold cross-validation split by procedure.
+
+Writes into the run folder: `fold-K.safetensors` (one model per fold, so an interrupted run
+resumes at the next fold), `cv_metrics.json` and `cv_scatter.png` (predictions on each fold's
+held-out procedures, pooled), `model.safetensors` (trained on every procedure: the model that
+ships), `train_log.jsonl` (losses) and `record.json` (config, data, depth model, times).
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+from tqdm import tqdm
+
+from hybrid.types import InputError
+from learned.config import CoverageConfig
+from learned.coverage_data import ProcedureSamples, file_tag, procedure_samples
+from learned.coverage_eval import Predictions, coverage_metrics, format_table, scatter_plots
+from learned.coverage_nets import CoverageModel, load_coverage_model
+from learned.model import load_depth_model
+from learned.train import expand_inputs
+
+
+def fold_split(count: int, folds: int, seed: int) -> list[np.ndarray]:
+    """Procedure indices of each fold's held-out set: a seeded shuffle cut into `folds` parts."""
+    if folds < 2:
+        return []
+    if count < folds:
+        raise InputError(f"{folds}-fold cross-validation needs at least {folds} procedures, "
+                         f"got {count}")
+    order = np.random.default_rng(seed).permutation(count)
+    return [np.sort(part) for part in np.array_split(order, folds)]
+
+
+def train_frame_net(model: CoverageModel, samples: list[ProcedureSamples], log,
+                    progress: bool = False) -> None:
+    """Stage 1: L2 loss on the per-frame coverage of the three Δ pairs (undefined ones masked).
+
+    Depth maps are flipped left-right and up-down at random: a mirrored colon is covered alike.
+    """
+    config = model.config
+    inputs = np.concatenate([s.inputs for s in samples])
+    labels = np.concatenate([s.frame_labels for s in samples])
+    keep = np.isfinite(labels).any(axis=1)
+    inputs, labels = inputs[keep], labels[keep]
+    steps_per_epoch = max(1, len(inputs) // config.frame_batch)
+    total = steps_per_epoch * config.frame_epochs
+    optimizer = torch.optim.AdamW(model.frame.parameters(), config.frame_lr,
+                                  weight_decay=config.weight_decay)
+    schedule = torch.optim.lr_scheduler.CosineAnnealingLR(optimizer, total)
+    rng = np.random.default_rng([config.seed, 1])
+    model.frame.train()
+    running, bar = [], tqdm(total=total, desc="stage 1 (per frame)", disable=not progress)
+    for step in range(total):
+        if step % steps_per_epoch == 0:
+            order = rng.permutation(len(inputs))
+        ids = np.sort(order[(step % steps_per_epoch) * config.frame_batch:][:config.frame_batch])
+        x = torch.from_numpy(inputs[ids].astype(np.float32))
+        flips = torch.from_numpy(rng.random((len(ids), 2)) < 0.5)
+        x = torch.where(flips[:, 0, None, None, None], x.flip(-1), x)
+        x = torch.where(flips[:, 1, None, None, None], x.flip(-2), x)
+        y = torch.from_numpy(labels[ids])
+        ok = torch.isfinite(y)
+        loss = (model.frame(x)[ok] - y[ok]).square().mean()
+        optimizer.zero_grad()
+        loss.backward()
+        optimizer.step()
+        schedule.step()
+        running.append(loss.item())
+        bar.update(1)
+        if (step + 1) % 100 == 0 or step + 1 == total:
+            log({"stage": 1, "step": step + 1, "loss": float(np.mean(running))})
+            bar.set_postfix(loss=f"{np.mean(running):.4f}")
+            running = []
+    bar.close()
+    model.frame.eval()
+
+
+def train_segment_net(model: CoverageModel, samples: list[ProcedureSamples],
+                      features: list[np.ndarray], log, progress: bool = False) -> None:
+    """Stage 2: L2 loss on the coverage of overlapping windows of frozen per-frame features.
+
+    Windows are reversed in time at random (coverage does not depend on frame order). Sets the
+    feature standardisation and the CORAL source statistics from the training windows.
+    """
+    config, net = model.config, model.segment
+    every = np.concatenate(features)
+    net.feature_mean.copy_(torch.from_numpy(every.mean(0)))
+    net.feature_std.copy_(torch.from_numpy(every.std(0) + 1e-6))
+    windows = [(k, int(start), float(label)) for k, s in enumerate(samples)
+               for start, label in zip(s.window_starts, s.window_labels, strict=True)
+               if np.isfinite(label)]
+    if not windows:
+        raise InputError(f"no {config.segment_frames}-frame training windows with a label; "
+                         f"the procedures are too short")
+    T = config.segment_frames
+
+    def stack(picks) -> torch.Tensor:
+        return torch.from_numpy(np.stack([features[windows[i][0]][windows[i][1]:][:T]
+                                          for i in picks]).astype(np.float32))
+
+    steps_per_epoch = max(1, len(windows) // config.segment_batch)
+    total = steps_per_epoch * config.segment_epochs
+    optimizer = torch.optim.AdamW(net.parameters(), config.segment_lr,
+                                  weight_decay=config.weight_decay)
+    schedule = torch.optim.lr_scheduler.CosineAnnealingLR(optimizer, total)
+    rng = np.random.default_rng([config.seed, 2])
+    targets = torch.tensor([w[2] for w in windows], dtype=torch.float32)
+    net.train()
+    running, bar = [], tqdm(total=total, desc="stage 2 (per segment)", disable=not progress)
+    for step in range(total):
+        if step % steps_per_epoch == 0:
+            order = rng.permutation(len(windows))
+        picks = order[(step % steps_per_epoch) * config.segment_batch:][:config.segment_batch]
+        x = stack(picks)
+        reverse = torch.from_numpy(rng.random(len(picks)) < 0.5)
+        x = torch.where(reverse[:, None, None], x.flip(1), x)
+        loss = (net(x) - targets[picks]).square().mean()
+        optimizer.zero_grad()
+        loss.backward()
+        optimizer.step()
+        schedule.step()
+        running.append(loss.item())
+        bar.update(1)
+        if (step + 1) % 200 == 0 or step + 1 == total:
+            log({"stage": 2, "step": step + 1, "loss": float(np.mean(running))})
+            running = []
+    bar.close()
+    net.eval()
+    with torch.no_grad():
+        embedded = torch.cat([net.embed(stack(range(k, min(k + 256, len(windows)))))
+                              for k in range(0, len(windows), 256)]).double()
+    net.source_mean.copy_(embedded.mean(0).float())
+    net.source_cov.copy_(torch.cov(embedded.T).float())
+
+
+def fit_model(samples: list[ProcedureSamples], config: CoverageConfig, log,
+              progress: bool = False) -> CoverageModel:
+    """Both stages on the given procedures."""
+    torch.manual_seed(config.seed)
+    model = CoverageModel(config)
+    train_frame_net(model, samples, log, progress)
+    features = [model.frame_outputs(s.inputs)[1] for s in samples]
+    train_segment_net(model, samples, features, log, progress)
+    return model
+
+
+def predict(model: CoverageModel, samples: ProcedureSamples) -> tuple[np.ndarray, np.ndarray]:
+    """Per-frame coverage (N, 3) and coverage of the procedure's back-to-back segments (S,)."""
+    frame, features = model.frame_outputs(samples.inputs)
+    return frame, model.segment_outputs(features, samples.segment_starts.tolist())
+
+
+def evaluate(model: CoverageModel, samples: list[ProcedureSamples],
+             predictions: Predictions | None = None) -> Predictions:
+    """Predictions with their truth on each procedure (appended to `predictions` if given)."""
+    predictions = predictions or Predictions()
+    for s in samples:
+        frame, segment = predict(model, s)
+        predictions.add(frame, s.frame_labels, segment, s.segment_labels)
+    return predictions
+
+
+def load_samples(data: list[Path], config: CoverageConfig, depth_checkpoint: Path,
+                 progress: bool = False) -> list[ProcedureSamples]:
+    """Samples of every simulated procedure under the given paths."""
+    paths = expand_inputs(data)
+    depth_model = None
+    if config.input_depth == "predicted":
+        depth_model = load_depth_model(depth_checkpoint)
+    tag = file_tag(depth_checkpoint)
+    return [procedure_samples(p, config, depth_model, tag, progress)
+            for p in tqdm(paths, desc="inputs and labels", disable=not progress)]
+
+
+def train_coverage(data: list[Path], out: Path, config: CoverageConfig,
+                   depth_checkpoint: Path, progress: bool = True) -> Path:
+    """Cross-validate, then train on everything; returns the final model's path."""
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    record_path = out / "record.json"
+    previous = json.loads(record_path.read_text()) if record_path.is_file() else {}
+    if previous and CoverageConfig.from_dict(previous["config"]) != config:
+        raise InputError(f"{out} holds a run with another config; resume it with the same "
+                         f"options or use another --out")
+    started = time.time()
+    samples = load_samples(data, config, depth_checkpoint, progress)
+    record = {"config": config.to_dict(), "data": [str(p) for p in data],
+              "procedures": [s.name for s in samples],
+              "depth_checkpoint": {"path": str(depth_checkpoint),
+                                   "sha256_12": file_tag(depth_checkpoint)},
+              "seconds": {**previous.get("seconds", {}),
+                          "inputs_and_labels": round(time.time() - started, 1)}}
+    record_path.write_text(json.dumps(record, indent=1) + "\n")
+    log_file = (out / "train_log.jsonl").open("a")
+
+    def log(entry: dict, fold: str = "all") -> None:
+        log_file.write(json.dumps({"fold": fold, **entry}) + "\n")
+        log_file.flush()
+
+    cv = Predictions()
+    for k, held_out in enumerate(fold_split(len(samples), config.folds, config.seed)):
+        path = out / f"fold-{k}.safetensors"
+        train = [s for i, s in enumerate(samples) if i not in set(held_out)]
+        if path.is_file():
+            model = load_coverage_model(path)
+        else:
+            tic = time.time()
+            model = fit_model(train, config, lambda e, k=k: log(e, str(k)), progress)
+            model.save(path)
+            record["seconds"][f"fold_{k}"] = round(time.time() - tic, 1)
+        evaluate(model, [samples[i] for i in held_out], cv)
+    if cv.frame_pred:
+        metrics = coverage_metrics(cv)
+        record["cv_metrics"] = metrics
+        (out / "cv_metrics.json").write_text(json.dumps(metrics, indent=1) + "\n")
+        scatter_plots(cv, out / "cv_scatter.png",
+                      f"{config.folds}-fold cross-validation by procedure ({len(samples)} "
+                      f"procedures)")
+        print(format_table({f"{config.folds}-fold CV": metrics}))
+    final = out / "model.safetensors"
+    if not final.is_file():
+        tic = time.time()
+        fit_model(samples, config, log, progress).save(final)
+        record["seconds"]["final"] = round(time.time() - tic, 1)
+    record["seconds"]["total_this_call"] = round(time.time() - started, 1)
+    record_path.write_text(json.dumps(record, indent=1) + "\n")
+    log_file.close()
+    return final

@@ -1,0 +1,191 @@
+"""Lumen fit and geometric coverage against known tubes and analytic views."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from conftest import wall_fraction
+from test_coverage import (
+    BACKWARD,
+    ELL,
+    FORWARD,
+    FORWARD_CAMERA,
+    SIDE,
+    SIDE_CAMERA,
+    VIEWS,
+)
+
+from hybrid.coverage import DELTA_PAIRS_CM, pair_key
+from hybrid.geometric_coverage import GeometricConfig, geometric_coverage
+from hybrid.lumen_fit import FittedLumen, fit_lumen, metric_scale
+from hybrid.types import Camera, InputError
+
+BEND_RADIUS = 15.0
+"""The curved test tube's centreline is an arc of this radius in the x-z plane."""
+
+
+def arc_centreline(angle: np.ndarray) -> np.ndarray:
+    return np.stack([BEND_RADIUS * (1 - np.cos(angle)), np.zeros_like(angle),
+                     BEND_RADIUS * np.sin(angle)], 1)
+
+
+def tube_radius(angle: np.ndarray) -> np.ndarray:
+    return 2.0 + 0.3 * np.sin(3 * angle)
+
+
+def curved_tube(angles: int = 700, around: int = 180) -> np.ndarray:
+    """Wall points of a bent tube: arc length 15·1.6 = 24 cm, radius 1.7-2.3 cm."""
+    a = np.linspace(0, 1.6, angles)
+    theta = np.linspace(0, 2 * np.pi, around, endpoint=False)
+    centre = arc_centreline(a)
+    normal = np.stack([np.cos(a), np.zeros_like(a), -np.sin(a)], 1)  # in-plane, ⟂ tangent
+    binormal = np.array([0.0, 1.0, 0.0])
+    ring = np.cos(theta)[None, :, None] * normal[:, None] + np.sin(theta)[None, :, None] \
+        * binormal
+    return (centre[:, None] + tube_radius(a)[:, None, None] * ring).reshape(-1, 3)
+
+
+def withdrawal_on_arc(frames: int = 400) -> np.ndarray:
+    """Cameras from angle 1.3 back to 0.2 (a withdrawal), 0.4 cm off the axis, looking deeper."""
+    a = np.linspace(1.3, 0.2, frames)
+    poses = np.repeat(np.eye(4)[None], frames, 0)
+    tangent = np.stack([np.sin(a), np.zeros_like(a), np.cos(a)], 1)
+    y = np.array([0.0, 1.0, 0.0])
+    poses[:, :3, 2] = tangent
+    poses[:, :3, 1] = y
+    poses[:, :3, 0] = np.cross(y, tangent)
+    poses[:, :3, 3] = arc_centreline(a) + 0.4 * y * np.sin(np.linspace(0, 6, frames))[:, None]
+    return poses
+
+
+def test_lumen_fit_recovers_a_curved_tube():
+    poses = withdrawal_on_arc()
+    lumen = fit_lumen(poses, curved_tube())
+    # True arc position of each fitted point: the angle of its projection on the bend plane.
+    angle = np.arctan2(lumen.points[:, 2], BEND_RADIUS - lumen.points[:, 0])
+    distance = np.linalg.norm(lumen.points - arc_centreline(angle), axis=1)
+    # Circle fits to exact wall points are exact; what is left is the slab's curvature and
+    # smoothing along a bend of radius 15 cm (a few hundredths of a cm).
+    assert distance.mean() < 0.05 and distance.max() < 0.15
+    covered = (angle > 0.25) & (angle < 1.5)
+    error = lumen.radius[covered] - tube_radius(angle[covered])
+    assert np.abs(error).mean() < 0.05
+    # A withdrawal: ℓ = 0 near the last camera, growing towards the first (the deep end), and
+    # continued beyond it into the look-ahead band.
+    assert np.all(np.diff(angle) > 0)
+    assert angle[0] < 0.2 and angle[-1] > 1.3 + 4.0 / BEND_RADIUS
+    assert metric_scale(lumen, 2.5) == pytest.approx(2.5 / np.median(lumen.radius))
+
+
+def test_lumen_fit_is_unit_free():
+    poses = withdrawal_on_arc()
+    surface = curved_tube()
+    lumen = fit_lumen(poses, surface)
+    scaled = poses.copy()
+    scaled[:, :3, 3] *= 0.1
+    small = fit_lumen(scaled, surface * 0.1)
+    assert np.allclose(small.points, lumen.points * 0.1, atol=1e-6)
+    assert np.allclose(small.radius, lumen.radius * 0.1, atol=1e-6)
+
+
+def test_lumen_fit_bad_input():
+    poses = withdrawal_on_arc()
+    with pytest.raises(InputError, match="no surface"):
+        fit_lumen(poses, np.zeros((0, 3)))
+    with pytest.raises(InputError, match="NaN"):
+        fit_lumen(poses, np.full((100, 3), np.nan))
+    with pytest.raises(InputError, match="too short"):
+        fit_lumen(poses[:3], curved_tube())
+
+
+# --- geometric coverage on the straight cylinder of test_coverage ------------------------
+
+RADIUS = 2.0
+AXIS = FittedLumen(np.array([[0.0, 0.0, 0.0], [0.0, 0.0, 10.0]]), np.array([RADIUS, RADIUS]))
+"""The exact lumen of the cylinder: the z axis, radius 2 cm, ℓ = z."""
+FINE = GeometricConfig(cell_length_cm=0.02, cells_around=720, segment_frames=1)
+
+
+def cylinder_depth(camera: Camera, view: np.ndarray, radius: float = RADIUS) -> np.ndarray:
+    """z-depth of the inside of the infinite cylinder x² + y² = R² seen from `view`."""
+    v, u = np.mgrid[:camera.height, :camera.width].astype(float)
+    rays = np.stack([(u - camera.cx) / camera.fx, (v - camera.cy) / camera.fy,
+                     np.ones_like(u)], -1) @ view[:3, :3].T  # world direction per unit z
+    o = view[:3, 3]
+    a = rays[..., 0] ** 2 + rays[..., 1] ** 2
+    b = 2 * (o[0] * rays[..., 0] + o[1] * rays[..., 1])
+    c = o[0] ** 2 + o[1] ** 2 - radius ** 2
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = (-b + np.sqrt(b * b - 4 * a * c)) / (2 * a)  # the exit root: we are inside
+    return np.where(np.isfinite(t) & (t > 0), t, 0.0).astype(np.float32)
+
+
+@pytest.mark.parametrize("name,camera,view,n_arcs", VIEWS, ids=[v[0] for v in VIEWS])
+def test_one_frame_matches_the_field_of_view_integral(name, camera, view, n_arcs):
+    result = geometric_coverage(AXIS, view[None], [cylinder_depth(camera, view)], camera.K,
+                                config=FINE)
+    for d0, d1 in DELTA_PAIRS_CM:
+        expected = wall_fraction(camera, [view], RADIUS, ELL + d0, ELL + d1, n_arcs)
+        # Cells instead of mesh vertices: the quadrature bound of conftest.mesh_tolerance with
+        # the cell grid (length h, K around), plus 0.01 for the image edge, which cells meet
+        # at their centre pixel.
+        grid = FINE.cell_length_cm * expected.total_variation / (d1 - d0) \
+            + n_arcs / FINE.cells_around
+        tol = grid + expected.grid_error + 0.01
+        got = result.segments[0].coverage[pair_key((d0, d1))]
+        assert got == pytest.approx(expected.value, abs=tol), (name, d0, d1)
+
+
+def test_a_segment_is_the_union_of_its_frames():
+    views = [FORWARD, SIDE]  # one lens for the whole video: the side camera's
+    depth = [cylinder_depth(SIDE_CAMERA, v) for v in views]
+    config = GeometricConfig(cell_length_cm=0.02, cells_around=720, segment_frames=2)
+    both = geometric_coverage(AXIS, np.stack(views), depth, SIDE_CAMERA.K, config=config)
+    alone = [geometric_coverage(AXIS, v[None], [d], SIDE_CAMERA.K, config=FINE)
+             for v, d in zip(views, depth, strict=True)]
+    key = pair_key((1.0, 4.0))
+    union = both.segments[0].coverage[key]
+    assert union >= max(a.segments[0].coverage[key] for a in alone) - 1e-12
+    expected = wall_fraction(SIDE_CAMERA, views, RADIUS, ELL + 1.0, ELL + 4.0, 6)
+    assert union == pytest.approx(expected.value, abs=0.02)
+
+
+def test_looking_backwards_sees_nothing_and_an_occluder_hides_everything():
+    back = geometric_coverage(AXIS, BACKWARD[None], [cylinder_depth(FORWARD_CAMERA, BACKWARD)],
+                              FORWARD_CAMERA.K, config=FINE)
+    assert back.segments[0].coverage[pair_key((1.0, 4.0))] == 0.0
+    # Something 0.5 cm in front of the camera fills the view: the band from 1 cm is hidden.
+    wall = np.full((FORWARD_CAMERA.height, FORWARD_CAMERA.width), 0.5, np.float32)
+    hidden = geometric_coverage(AXIS, FORWARD[None], [wall], FORWARD_CAMERA.K, config=FINE)
+    assert hidden.segments[0].coverage[pair_key((1.0, 4.0))] == 0.0
+    assert (hidden.first_seen == -1).all() and hidden.expected.any()
+
+
+def test_geometric_coverage_bad_input():
+    depth = cylinder_depth(FORWARD_CAMERA, FORWARD)
+    two = np.stack([FORWARD, FORWARD])
+    config = GeometricConfig(segment_frames=2)
+    with pytest.raises(InputError, match="1 depth maps for 2 poses"):
+        geometric_coverage(AXIS, two, [depth], FORWARD_CAMERA.K, config=config)
+    with pytest.raises(InputError, match="shorter than one segment"):
+        geometric_coverage(AXIS, FORWARD[None], [depth], FORWARD_CAMERA.K, config=config)
+    with pytest.raises(InputError, match="not finite"):
+        geometric_coverage(AXIS, two, [depth, depth * np.nan], FORWARD_CAMERA.K, config=config)
+    with pytest.raises(InputError, match="NaN"):
+        geometric_coverage(AXIS, two * np.nan, [depth, depth], FORWARD_CAMERA.K, config=config)
+    with pytest.raises(InputError, match="image region"):
+        geometric_coverage(AXIS, two, [depth, depth], FORWARD_CAMERA.K,
+                           region=np.ones((3, 3), bool), config=config)
+
+
+def test_map_files(tmp_path):
+    result = geometric_coverage(AXIS, FORWARD[None], [cylinder_depth(FORWARD_CAMERA, FORWARD)],
+                                FORWARD_CAMERA.K, config=GeometricConfig(segment_frames=1))
+    saved = np.load(result.save_map(tmp_path / "map.npz"))
+    assert saved["first_seen"].shape == saved["expected"].shape == result.cells.area.shape
+    # The seen cells of the expected band are the segment's coverage, by area.
+    seen = (saved["first_seen"] == 0) & saved["expected"]
+    area = result.cells.area
+    assert area[seen].sum() / area[saved["expected"]].sum() == pytest.approx(
+        result.segments[0].coverage[pair_key((1.0, 4.0))])
+    assert result.plot_map(tmp_path / "map.png").stat().st_size > 0

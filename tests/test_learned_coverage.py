@@ -1,0 +1,310 @@
+"""The two-stage coverage networks: structure, the input rule, training, CORAL, the fold split,
+the commands, and bad input."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from conftest import TINY
+from test_learned_cli import assert_clean_error, runner, save_model
+from torch import nn
+
+from hybrid.cli import app
+from hybrid.types import InputError
+from learned.config import COVERAGE_PRESETS, coverage_config, parse_overrides
+from learned.coral import adapt, coral_transform
+from learned.coverage_data import ProcedureSamples
+from learned.coverage_nets import (
+    CoverageModel,
+    SegmentNet,
+    count_parameters,
+    load_coverage_model,
+    normalise_depth,
+)
+from learned.coverage_train import fold_split, train_frame_net, train_segment_net
+from learned.model import DepthModel
+
+pytestmark = pytest.mark.usefixtures("one_thread")
+
+SMALL = replace(COVERAGE_PRESETS["fast"], height=16, width=20, frame_channels=(4, 8, 8, 8, 8),
+                segment_frames=20, segment_stride=5, segment_channels=(4, 4, 4, 4, 4, 4),
+                segment_kernels=(1, 3, 3, 3, 3, 3), segment_strides=(1, 1, 1, 1, 1, 1),
+                frame_epochs=8, frame_batch=16, segment_epochs=150, segment_batch=8)
+"""The fast coverage preset shrunk for tests (its preset name stays 'fast')."""
+
+
+def toy_samples(count: int = 3, frames: int = 60, seed: int = 0) -> list[ProcedureSamples]:
+    """Random smooth inputs whose per-frame labels are a function of the input, and window
+    labels the mean of their frames' first label."""
+    rng = np.random.default_rng(seed)
+    out = []
+    for k in range(count):
+        level = np.cumsum(rng.normal(0, 0.3, frames))
+        inputs = (level[:, None, None, None] * np.linspace(-1, 1, SMALL.width)
+                  + rng.normal(0, 0.05, (frames, 1, SMALL.height, SMALL.width)))
+        slope = np.abs(level)
+        labels = np.stack([1 / (1 + slope), 1 / (1 + 0.5 * slope), 1 / (1 + 0.2 * slope)], 1)
+        starts = np.arange(0, frames - SMALL.segment_frames + 1, SMALL.segment_stride)
+        window = np.array([labels[s:s + SMALL.segment_frames, 0].mean() for s in starts])
+        out.append(ProcedureSamples(f"toy/{k}", inputs.astype(np.float16),
+                                    labels.astype(np.float32), starts, window, starts[:1],
+                                    window[:1]))
+    return out
+
+
+def frame_loss(model: CoverageModel, samples: list[ProcedureSamples]) -> float:
+    pred = np.concatenate([model.frame_outputs(s.inputs)[0] for s in samples])
+    return float(np.mean((pred - np.concatenate([s.frame_labels for s in samples])) ** 2))
+
+
+def segment_loss(model: CoverageModel, samples: list[ProcedureSamples]) -> float:
+    errors = []
+    for s in samples:
+        features = model.frame_outputs(s.inputs)[1]
+        errors += list(model.segment_outputs(features, s.window_starts.tolist())
+                       - s.window_labels)
+    return float(np.mean(np.square(errors)))
+
+
+# --- structure ----------------------------------------------------------------------------
+
+
+def test_segment_net_has_six_convolutions_pooling_and_one_output():
+    config = COVERAGE_PRESETS["paper"]
+    net = SegmentNet(config)
+    convs = [m for m in net.convs if isinstance(m, nn.Conv1d)]
+    assert len(convs) == 6
+    assert convs[0].in_channels == 2048
+    assert [c.out_channels for c in convs] == list(config.segment_channels)
+    assert isinstance(net.fc, nn.Linear) and net.fc.out_features == 1
+    # Parameter count from the layer sizes (weights + biases), about 20K as in the paper.
+    cin, expected = 2048, 0
+    for cout, kernel in zip(config.segment_channels, config.segment_kernels, strict=True):
+        expected += cin * cout * kernel + cout
+        cin = cout
+    expected += cin + 1
+    assert count_parameters(net) == expected == 22_249
+    out = net(torch.randn(3, 300, 2048))
+    assert out.shape == (3,) and bool(((out > 0) & (out < 1)).all())
+
+
+def test_paper_per_frame_net_is_resnet50_with_2048_features():
+    config = COVERAGE_PRESETS["paper"]
+    model = CoverageModel(config)
+    # ResNet-50 without its classifier has 23,508,032 parameters; ours takes one input
+    # channel (7x7x64 weights instead of 7x7x3x64) and ends in 3 outputs.
+    assert count_parameters(model.frame.encoder) == 23_508_032 - 7 * 7 * 2 * 64
+    assert model.frame.head.in_features == 2048 and model.frame.head.out_features == 3
+    features = model.frame.eval().features(torch.zeros(1, 1, 64, 64))
+    assert features.shape == (1, 2048)
+
+
+def test_normalised_input_is_log_depth_over_its_median():
+    depth = np.full((1, 8, 10), 2.0, np.float32)
+    depth[0, :, 5:] = 8.0
+    region = np.ones((8, 10), bool)
+    region[0, 0] = False  # border pixel: depth there is ignored
+    depth[0, 0, 0] = 1e6
+    out = normalise_depth(depth, region, (8, 10))
+    median = np.median(depth[0][region])
+    assert out.shape == (1, 1, 8, 10)
+    assert out[0, 0, 0, 0] == 0.0
+    assert np.allclose(out[0, 0, 4, :5], np.log(2.0 / median))
+    assert np.allclose(out[0, 0, 4, 5:], np.log(8.0 / median))
+    # Scale invariance: depth known up to scale gives the same input.
+    assert np.allclose(normalise_depth(depth * 7.5, region, (8, 10)), out, atol=1e-6)
+
+
+def test_normalised_input_rejects_nan_depth():
+    depth = np.ones((3, 4, 4), np.float32)
+    depth[2, 1, 1] = np.nan
+    with pytest.raises(InputError, match=r"frames \[2\]"):
+        normalise_depth(depth, np.ones((4, 4), bool), (4, 4), name="clip.mp4")
+
+
+# --- training -----------------------------------------------------------------------------
+
+
+def test_training_reduces_both_losses_on_a_tiny_set():
+    samples = toy_samples()
+    torch.manual_seed(0)
+    model = CoverageModel(SMALL)
+    before = frame_loss(model, samples)
+    log: list[dict] = []
+    train_frame_net(model, samples, log.append)
+    after = frame_loss(model, samples)
+    assert after < 0.5 * before, (before, after)
+    features = [model.frame_outputs(s.inputs)[1] for s in samples]
+    seg_before = segment_loss(model, samples)
+    train_segment_net(model, samples, features, log.append)
+    seg_after = segment_loss(model, samples)
+    assert seg_after < 0.5 * seg_before, (seg_before, seg_after)
+    assert {e["stage"] for e in log} == {1, 2}
+    assert all(np.isfinite(e["loss"]) for e in log)
+
+
+def test_fold_split_never_mixes_procedures():
+    folds = fold_split(11, 5, seed=3)
+    assert len(folds) == 5
+    held = np.concatenate(folds)
+    assert sorted(held.tolist()) == list(range(11))  # each procedure held out exactly once
+    for k, test in enumerate(folds):
+        train = set(range(11)) - set(test.tolist())
+        assert not train & set(test.tolist())
+        assert len(test) in (2, 3)
+        assert all(not set(test.tolist()) & set(other.tolist())
+                   for j, other in enumerate(folds) if j != k)
+    assert [f.tolist() for f in fold_split(11, 5, seed=3)] == [f.tolist() for f in folds]
+    with pytest.raises(InputError, match="at least 5 procedures"):
+        fold_split(3, 5, seed=0)
+
+
+# --- CORAL --------------------------------------------------------------------------------
+
+
+def test_coral_transform_matches_mean_and_covariance():
+    rng = np.random.default_rng(0)
+    d = 6
+    source = rng.normal(size=(500, d)) @ rng.normal(size=(d, d)) + rng.normal(size=d)
+    target = rng.normal(size=(300, d)) @ rng.normal(size=(d, d)) * 3 - 5
+    mean, cov = source.mean(0), np.cov(source, rowvar=False)
+    A, b = coral_transform(mean, cov, target)
+    moved = target @ A.T + b
+    assert np.allclose(moved.mean(0), mean, atol=1e-9)
+    tolerance = 1e-3 * np.abs(cov).max()  # the ridge (RIDGE of the mean variance) moves it
+    assert np.abs(np.cov(moved, rowvar=False) - cov).max() < tolerance
+    # Before adaptation the statistics were far apart.
+    assert np.abs(np.cov(target, rowvar=False) - cov).max() > 100 * tolerance
+
+
+def test_adapt_makes_target_features_look_like_the_source():
+    torch.manual_seed(0)
+    model = CoverageModel(SMALL)
+    rng = np.random.default_rng(1)
+    F = SMALL.feature_size
+    def walks() -> list[np.ndarray]:  # features drifting over time, so that windows differ
+        return [np.cumsum(rng.normal(size=(200, F)), 0).astype(np.float32) for _ in range(3)]
+
+    source = walks()
+    starts = list(range(0, 200 - SMALL.segment_frames + 1, 3))
+    embedded = torch.cat([model.segment_embeddings(f, starts) for f in source]).double()
+    model.segment.source_mean.copy_(embedded.mean(0).float())
+    model.segment.source_cov.copy_(torch.cov(embedded.T).float())
+    # The target domain: the same kind of features, rescaled and shifted.
+    target = [2.5 * f + 1.0 for f in walks()]
+    used = adapt(model, target, stride=3)
+    assert used == 3 * len(starts)
+    net = model.segment
+    z = torch.cat([model.segment_embeddings(f, starts) for f in target]).double()
+    moved = z @ net.coral_matrix.double().T + net.coral_offset.double()
+    scale = float(net.source_cov.abs().max())
+    assert scale > 1e-5  # windows differ: a real covariance to match
+    assert (moved.mean(0) - net.source_mean.double()).abs().max() < 1e-4 * scale ** 0.5
+    assert (torch.cov(moved.T) - net.source_cov.double()).abs().max() < 1e-3 * scale
+
+
+def test_adapt_needs_a_video_of_one_segment():
+    model = CoverageModel(SMALL)
+    with pytest.raises(InputError, match="at least 20 frames"):
+        adapt(model, [np.zeros((19, SMALL.feature_size), np.float32)], stride=5)
+
+
+# --- bad input ----------------------------------------------------------------------------
+
+
+def test_segment_shorter_than_the_window_is_an_input_error():
+    model = CoverageModel(SMALL)
+    with pytest.raises(InputError, match="needs 20 frames"):
+        model.segment_outputs(np.zeros((19, SMALL.feature_size), np.float32), [0])
+
+
+def test_features_of_the_wrong_size_are_an_input_error():
+    model = CoverageModel(SMALL)
+    with pytest.raises(InputError, match=r"\(N, 8\)"):
+        model.segment_outputs(np.zeros((40, 2048), np.float32), [0])
+    with pytest.raises(InputError, match="normalised depth"):
+        model.frame_outputs(np.zeros((2, 1, 64, 80), np.float32))
+
+
+def test_a_model_of_another_preset_is_an_input_error(tmp_path):
+    path = tmp_path / "small.safetensors"
+    CoverageModel(SMALL).save(path)
+    assert load_coverage_model(path, preset="fast").config == SMALL
+    with pytest.raises(InputError, match="'fast'-preset coverage model"):
+        load_coverage_model(path, preset="paper")
+    depth = save_model(tmp_path / "depth.safetensors", DepthModel(TINY), TINY.to_dict())
+    with pytest.raises(InputError, match="'depth' checkpoint, not a 'coverage'"):
+        load_coverage_model(depth)
+
+
+def test_coverage_config_overrides():
+    assert parse_overrides(["input_depth=true", "frame_epochs=2"], COVERAGE_PRESETS["fast"]) \
+        == {"input_depth": "true", "frame_epochs": 2}
+    with pytest.raises(ValueError, match="input_depth"):
+        coverage_config("fast", input_depth="lidar")
+    with pytest.raises(ValueError, match="unknown preset"):
+        coverage_config("huge")
+
+
+# --- commands on simulated procedures -----------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def two_procedures(tmp_path_factory, sim_config) -> Path:
+    from hybrid.sim.simulate import simulate_procedure
+
+    root = tmp_path_factory.mktemp("cov_data")
+    for index in (0, 1):
+        simulate_procedure(root, 11, index, sim_config)
+    return root
+
+
+def test_train_eval_and_adapt_commands(tmp_path, two_procedures):
+    depth = save_model(tmp_path / "depth.safetensors", DepthModel(TINY), TINY.to_dict())
+    run = tmp_path / "run"
+    sets = ["segment_frames=20", "segment_stride=5", "frame_epochs=1", "segment_epochs=2",
+            "frame_batch=16"]
+    args = ["train-coverage", "--data", str(two_procedures), "--out", str(run), "--folds", "2",
+            "--depth-checkpoint", str(depth)] + [x for s in sets for x in ("--set", s)]
+    result = runner.invoke(app, args)
+    assert result.exit_code == 0, result.output
+    assert {p.name for p in run.iterdir()} >= {"fold-0.safetensors", "fold-1.safetensors",
+                                               "model.safetensors", "cv_metrics.json",
+                                               "cv_scatter.png", "record.json"}
+    import json
+
+    cv = json.loads((run / "cv_metrics.json").read_text())
+    assert cv["segments"] == 4 and cv["frames"] == 80  # 2 procedures x (40 frames, 2 segments)
+    assert 0 <= cv["segment_mae"] <= 1 and 0 <= cv["frame_mae_1-4"] <= 1
+    # The same command again resumes: nothing is retrained.
+    stamp = (run / "fold-0.safetensors").stat().st_mtime_ns
+    assert runner.invoke(app, args).exit_code == 0
+    assert (run / "fold-0.safetensors").stat().st_mtime_ns == stamp
+
+    evaluation = tmp_path / "eval"
+    result = runner.invoke(app, ["eval-coverage", "--data", str(two_procedures), "--out",
+                                 str(evaluation), "--model", str(run / "model.safetensors"),
+                                 "--depth-checkpoint", str(depth)])
+    assert result.exit_code == 0, result.output
+    metrics = json.loads((evaluation / "metrics.json").read_text())
+    assert metrics["segments"] == 4 and (evaluation / "scatter.png").stat().st_size > 0
+
+    adapted = tmp_path / "adapted.safetensors"
+    result = runner.invoke(app, ["adapt", "--target", str(two_procedures), "--out", str(adapted),
+                                 "--model", str(run / "model.safetensors"),
+                                 "--depth-checkpoint", str(depth)])
+    assert result.exit_code == 0, result.output
+    assert "CORAL fitted on 10 target windows" in result.output  # 2 x (40 - 20) / 5 + 2
+    net = load_coverage_model(adapted).segment
+    assert not torch.allclose(net.coral_matrix, torch.eye(len(net.coral_matrix)))
+
+
+def test_eval_coverage_with_a_depth_checkpoint_as_model(tmp_path, two_procedures):
+    depth = save_model(tmp_path / "depth.safetensors", DepthModel(TINY), TINY.to_dict())
+    result = runner.invoke(app, ["eval-coverage", "--data", str(two_procedures), "--out",
+                                 str(tmp_path / "e"), "--model", str(depth)])
+    assert_clean_error(result, "depth.safetensors", "not a 'coverage'")
