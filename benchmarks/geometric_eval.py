@@ -1,0 +1,174 @@
+"""Geometric coverage against the simulator's ground truth, with oracle and with learned inputs.
+
+Modes (each: pose graph where learned, TSDF, lumen fit, geometric coverage):
+  oracle        true depth, K and poses, metric scale known
+  oracle-s0.7   the same with every length scaled by 0.7 (the scale rule 30% short) ...
+  oracle-s1.3   ... or 30% long: how coverage moves when the assumed radius is 30% off
+  oracle-rule   true depth, K and poses, scale from the typical-radius rule
+  learned       the shipped depth model's depth, K and relative poses (gaps 1, 2, 4, 8),
+                smoothed by the pose graph, scale from the typical-radius rule
+Prints MAE, bias and 3-class accuracy per mode, the lumen fit errors, and the frames/s of the
+pose graph + TSDF + coverage; writes a JSON and a scatter plot.
+
+    python benchmarks/geometric_eval.py --data data/test data/cov-dusk --out docs/geometric
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from fusion.posegraph import PoseGraphConfig, smooth_trajectory
+from hybrid.coverage import Lumen
+from hybrid.dataset import Procedure
+from hybrid.geometric_coverage import geometric_coverage
+from hybrid.reconstruction import ReconstructionConfig, ScaledDepth, reconstruct
+from learned.coverage_eval import three_class
+from learned.frames import open_sequence
+from learned.infer import infer_sequence, relative_poses
+from learned.metrics import umeyama_sim3
+from learned.model import load_depth_model
+from learned.train import expand_inputs
+
+MODES = ("oracle", "oracle-s0.7", "oracle-s1.3", "oracle-rule", "learned")
+
+
+def lumen_errors(fitted_points: np.ndarray, fitted_radius: np.ndarray, proc: Procedure,
+                 poses: np.ndarray) -> dict:
+    """Mean distance from the fitted centreline (within the camera's ℓ range + 6 cm) to the
+    true one, and the radius error against the median wall distance around it."""
+    true = Lumen(proc.lumen)
+    ell_cam, _ = true.project(poses[:, :3, 3])
+    ell, near = true.project(fitted_points)
+    keep = (ell >= ell_cam.min()) & (ell <= ell_cam.max() + 6.0)
+    mesh = proc.mesh()
+    v_ell, v_near = true.project(mesh.vertices)
+    v_r = np.linalg.norm(mesh.vertices - v_near, axis=1)
+    order = np.argsort(v_ell)
+    r_true = []
+    for e in ell[keep]:
+        a, b = np.searchsorted(v_ell[order], [e - 0.25, e + 0.25])
+        r_true.append(np.median(v_r[order[a:b]]))
+    return {"centreline_cm": float(np.linalg.norm(fitted_points - near, axis=1)[keep].mean()),
+            "radius_error_cm": float(np.mean(fitted_radius[keep] - np.array(r_true)))}
+
+
+def run_procedure(proc: Procedure, model, graph: PoseGraphConfig, config: ReconstructionConfig
+                  ) -> dict:
+    truth = proc.coverage.segment_labels()
+    depth_true = [proc.depth(i) for i in range(proc.num_frames)]
+    rgb = [proc.rgb(i) for i in range(proc.num_frames)]
+    out = {"truth": truth.tolist()}
+    for mode in MODES:
+        tic = time.time()
+        if mode == "learned":
+            seq = open_sequence(proc.path, (model.config.height, model.config.width))
+            inferred = infer_sequence(model, seq)
+            depth, K = list(inferred.depth), np.median(inferred.K_pairs, axis=0)
+            relative = {1: inferred.relative,
+                        **relative_poses(model, seq, tuple(g for g in graph.skips if g > 1))}
+            network_s = time.time() - tic
+            tic = time.time()
+            poses = smooth_trajectory(relative, graph, name=str(proc.path)).poses
+            scale = None
+        else:
+            depth, K, poses, network_s = depth_true, proc.camera.K, proc.poses, 0.0
+            scale = {"oracle": 1.0, "oracle-s0.7": 0.7, "oracle-s1.3": 1.3,
+                     "oracle-rule": None}[mode]
+        rec = reconstruct(depth, K, poses, rgb, config=config, scale=scale, fps=proc.camera.fps,
+                          name=proc.path.name)
+        result = geometric_coverage(rec.lumen, rec.poses, ScaledDepth(depth, rec.scale), K)
+        seconds = time.time() - tic
+        row = {"pred": result.labels().tolist(), "scale": rec.scale, "seconds": seconds,
+               "network_seconds": network_s, "frames": proc.num_frames}
+        if mode == "learned":  # compare the lumen in the true frame after Sim(3) alignment
+            s, R, t = umeyama_sim3(rec.poses[:, :3, 3], proc.poses[:, :3, 3])
+            row.update(lumen_errors(s * rec.lumen.points @ R.T + t, s * rec.lumen.radius, proc,
+                                    proc.poses))
+        else:
+            inverse = 1.0 if scale is None or mode == "oracle-rule" else 1.0 / rec.scale
+            row.update(lumen_errors(rec.lumen.points * inverse, rec.lumen.radius * inverse,
+                                    proc, proc.poses))
+        out[mode] = row
+        print(f"{proc.path}: {mode:12s} scale {rec.scale:6.3f}  truth "
+              f"{np.round(truth, 2).tolist()}  pred {np.round(row['pred'], 2).tolist()}  "
+              f"{seconds:5.1f} s", flush=True)
+    return out
+
+
+def summary(results: dict) -> dict:
+    table = {}
+    for mode in MODES:
+        truth = np.concatenate([r["truth"] for r in results.values()])
+        pred = np.concatenate([r[mode]["pred"] for r in results.values()])
+        ok = np.isfinite(truth) & np.isfinite(pred)
+        err = pred[ok] - truth[ok]
+        frames = sum(r[mode]["frames"] for r in results.values())
+        table[mode] = {
+            "mae": float(np.abs(err).mean()), "bias": float(err.mean()),
+            "3class": float((three_class(pred[ok]) == three_class(truth[ok])).mean()),
+            "segments": int(ok.sum()),
+            "centreline_cm": float(np.mean([r[mode]["centreline_cm"] for r in results.values()])),
+            "radius_error_cm": float(np.mean([r[mode]["radius_error_cm"]
+                                              for r in results.values()])),
+            "geometry_fps": frames / sum(r[mode]["seconds"] for r in results.values()),
+        }
+    return table
+
+
+def scatter(results: dict, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 2, figsize=(9, 4.4))
+    for ax, mode in zip(axes, ("oracle", "learned"), strict=True):
+        truth = np.concatenate([r["truth"] for r in results.values()])
+        pred = np.concatenate([r[mode]["pred"] for r in results.values()])
+        ax.scatter(truth, pred, s=14, alpha=0.7)
+        ax.plot([0, 1], [0, 1], "k--", lw=1)
+        ok = np.isfinite(truth) & np.isfinite(pred)
+        ax.set(xlim=(0, 1), ylim=(0, 1), xlabel="true segment coverage",
+               ylabel="geometric coverage",
+               title=f"{mode} inputs: MAE {np.abs(pred[ok] - truth[ok]).mean():.3f}")
+        ax.set_aspect("equal")
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--data", nargs="+", type=Path, default=[Path("data/test")])
+    parser.add_argument("--out", type=Path, default=Path("docs/geometric"))
+    parser.add_argument("--checkpoint", type=Path, default=None)
+    args = parser.parse_args()
+    torch.set_num_threads(1)
+    from learned.checkpoints import SHIPPED_DEPTH
+
+    model = load_depth_model(args.checkpoint or SHIPPED_DEPTH)
+    graph, config = PoseGraphConfig(), ReconstructionConfig()
+    results = {f"{p.parent.name}/{p.name}": run_procedure(Procedure.open(p), model, graph,
+                                                           config)
+               for p in expand_inputs(args.data)}
+    table = summary(results)
+    args.out.mkdir(parents=True, exist_ok=True)
+    (args.out / "geometric_eval.json").write_text(json.dumps(
+        {"summary": table, "procedures": results}, indent=1) + "\n")
+    scatter(results, args.out / "geometric_scatter.png")
+    print(f"{'mode':12s} {'MAE':>6s} {'bias':>7s} {'3-class':>8s} {'n':>4s} "
+          f"{'centre cm':>9s} {'r err cm':>8s} {'fps':>6s}")
+    for mode, m in table.items():
+        print(f"{mode:12s} {m['mae']:6.3f} {m['bias']:7.3f} {m['3class']:8.3f} "
+              f"{m['segments']:4d} {m['centreline_cm']:9.3f} {m['radius_error_cm']:8.3f} "
+              f"{m['geometry_fps']:6.0f}")
+
+
+if __name__ == "__main__":
+    main()
