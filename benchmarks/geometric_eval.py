@@ -91,9 +91,9 @@ def run_procedure(proc: Procedure, model, graph: PoseGraphConfig, config: Recons
             row.update(lumen_errors(s * rec.lumen.points @ R.T + t, s * rec.lumen.radius, proc,
                                     proc.poses))
         else:
-            inverse = 1.0 if scale is None or mode == "oracle-rule" else 1.0 / rec.scale
-            row.update(lumen_errors(rec.lumen.points * inverse, rec.lumen.radius * inverse,
-                                    proc, proc.poses))
+            back = 1.0 / rec.scale  # to the simulator's cm
+            row.update(lumen_errors(rec.lumen.points * back, rec.lumen.radius * back, proc,
+                                    proc.poses))
         out[mode] = row
         print(f"{proc.path}: {mode:12s} scale {rec.scale:6.3f}  truth "
               f"{np.round(truth, 2).tolist()}  pred {np.round(row['pred'], 2).tolist()}  "

@@ -94,28 +94,135 @@ def demo(
     out: Annotated[Path, typer.Option(help="Folder for the demo's outputs.")] = Path("c2d2-demo"),
     seed: Annotated[int, typer.Option(help="Random seed.")] = 0,
     length_cm: Annotated[float, typer.Option(help="Colon length in cm.")] = 50.0,
+    max_frames: Annotated[int, typer.Option(min=300, help="Frames of the withdrawal (30 fps).")
+                          ] = 1200,
 ):
-    """Simulate a short procedure, write a preview and print its per-segment ground truth."""
+    """Simulate a procedure with ground truth, run the whole pipeline on its video, and print
+    per segment the true, learned and geometric coverage."""
     from hybrid.coverage import pair_key
     from hybrid.dataset import Procedure
-    from hybrid.preview import write_preview
+    from hybrid.pipeline import run_video
     from hybrid.sim.simulate import SimConfig, simulate_procedure, with_overrides
 
     try:
-        config = with_overrides(SimConfig(), length_cm=length_cm)
+        config = with_overrides(SimConfig(), length_cm=length_cm, max_frames=max_frames)
     except ValueError as err:
         raise InputError(str(err)) from err
     procedure = Procedure.open(simulate_procedure(out, seed, 0, config, progress=True))
-    preview = write_preview(procedure, out / "preview.png")
-    cov = procedure.coverage
-    keys = [pair_key(p) for p in cov.delta_pairs]
-    typer.echo(f"{procedure.num_frames} frames in {procedure.path}; preview: {preview}")
-    typer.echo("segment  frames       " + "  ".join(f"C(Δ={k})" for k in keys)
-               + f"   (default label: Δ={pair_key(cov.default_pair)} cm)")
-    for s in cov.segments:
-        values = "  ".join(f"{s.coverage[k]:9.3f}" if s.coverage[k] is not None else "      n/a"
-                           for k in keys)
-        typer.echo(f"{s.index:7d}  {s.start:5d}-{s.stop:<5d}  {values}")
+    result = run_video(procedure.path, out / "run", echo=typer.echo)
+    table = json.loads((out / "run" / "coverage.json").read_text())
+    truth = procedure.coverage
+    key = pair_key(truth.default_pair)
+    typer.echo(f"segment  time (s)      truth  learned  geometric   (Δ = {key} cm)")
+    for row, true in zip(table["segments"], truth.segments, strict=False):
+        cells = [true.coverage[key], row["learned"], row["geometric"]]
+        typer.echo(f"{row['index']:7d}  {row['start_s']:5.1f}-{row['end_s']:<6.1f} "
+                   + "  ".join("      n/a" if c is None else f"{c:7.3f}" for c in cells))
+    typer.echo(f"report: {out / 'run' / 'report.html'}")
+    _print_warnings(result["warnings"])
+
+
+@app.command()
+@_reports_input_errors
+def run(
+    video: Annotated[Path, typer.Argument(help="Video file (or image folder, or simulated "
+                                          "procedure).")],
+    out: Annotated[Path, typer.Option(help="Work folder: every stage's output and "
+                                      "report.html; rerun to resume.")],
+    fps: Annotated[float | None, typer.Option(help="Frame rate, if the file's is wrong or "
+                                              "missing.")] = None,
+    mask: Annotated[Path | None, typer.Option(help="Image-region mask (white = image) in the "
+                                              "video's size; detected if omitted.")] = None,
+    depth_checkpoint: Annotated[Path | None, typer.Option(help="Depth model (default: "
+                                                          "shipped).")] = None,
+    coverage_checkpoint: Annotated[Path | None, typer.Option(help="Coverage model, e.g. one "
+                                                             "adapted with `c2d2 adapt` "
+                                                             "(default: shipped).")] = None,
+):
+    """The whole pipeline on one video: coverage.json/.csv, mesh.ply, maps/, report.html."""
+    from hybrid.pipeline import RunConfig, run_video
+
+    config = RunConfig(depth_checkpoint=_opt(depth_checkpoint),
+                       coverage_checkpoint=_opt(coverage_checkpoint), fps=fps)
+    result = run_video(video, out, config, region=_read_mask(mask), echo=typer.echo)
+    table = json.loads((out / "coverage.json").read_text())
+    typer.echo("segment  time (s)      learned  geometric  agree  deficient  assessable")
+    for r in table["segments"]:
+        cells = ["    n/a" if r[k] is None else f"{r[k]:7.3f}" for k in ("learned", "geometric")]
+        typer.echo(f"{r['index']:7d}  {r['start_s']:5.1f}-{r['end_s']:<6.1f} {cells[0]}  "
+                   f"{cells[1]}    {_yes(r['agree']):5s}  {_yes(r['deficient']):9s}  "
+                   f"{_yes(r['assessable'])}")
+    typer.echo(f"report: {out / 'report.html'}")
+    _print_warnings(result["warnings"])
+
+
+@app.command()
+@_reports_input_errors
+def batch(
+    folder: Annotated[Path, typer.Argument(help="Folder of videos.")],
+    out: Annotated[Path, typer.Option(help="Output folder: one work folder per video and "
+                                      "summary.csv; rerun to resume.")],
+    workers: Annotated[int, typer.Option(min=1, help="Videos processed in parallel.")] = 1,
+):
+    """Every video in a folder; failures are recorded per video while the rest go on."""
+    import csv
+
+    from hybrid.batch import run_batch
+
+    summary = run_batch(folder, out, workers=workers)
+    rows = list(csv.DictReader(summary.open()))
+    failed = [r for r in rows if r["status"] == "failed"]
+    for r in failed:
+        typer.echo(f"failed: {r['video']}: {r['error']}", err=True)
+    typer.echo(f"{len(rows) - len(failed)} of {len(rows)} videos done; summary: {summary}")
+    if failed:
+        raise typer.Exit(1)
+
+
+@app.command("eval")
+@_reports_input_errors
+def eval_pipeline(
+    data: Annotated[list[Path], typer.Option(help="Simulated procedures, or folders of them.")],
+    out: Annotated[Path, typer.Option(help="Work folders per procedure and eval.json.")],
+):
+    """MAE of learned and geometric coverage against the truth, and the branches' agreement."""
+    from hybrid.dataset import Procedure
+    from hybrid.evaluate import evaluate_pipeline
+    from hybrid.pipeline import Models, RunConfig
+    from learned.train import expand_inputs
+
+    config = RunConfig()
+    models = Models.load(config)
+    procedures = [Procedure.open(p) for p in expand_inputs(data)]
+    summary = evaluate_pipeline(procedures, out, config, models, echo=typer.echo)
+    typer.echo(json.dumps(summary["summary"], indent=1))
+
+
+def _opt(path: Path | None) -> str | None:
+    return None if path is None else str(path)
+
+
+def _yes(value) -> str:
+    return "n/a" if value is None else ("yes" if value else "no")
+
+
+def _read_mask(mask: Path | None):
+    import cv2
+
+    if mask is None:
+        return None
+    image = cv2.imread(str(mask), cv2.IMREAD_GRAYSCALE)
+    if image is None:
+        raise InputError(f"cannot read mask image {mask}")
+    return image > 127
+
+
+def _print_warnings(warnings: list[str]) -> None:
+    """Warnings mean the results are written but incomplete: exit status 3."""
+    for warning in warnings:
+        typer.echo(f"warning: {warning}", err=True)
+    if warnings:
+        raise typer.Exit(3)
 
 
 def _load_npy(path: Path):
@@ -172,20 +279,12 @@ def depth(
                                               "input's size; detected if omitted.")] = None,
 ):
     """Per-frame depth, relative poses and one intrinsics estimate for an input."""
-    import cv2
-
     from learned.frames import open_sequence
     from learned.infer import infer_sequence, write_depth_outputs
     from learned.model import load_depth_model
 
     model = load_depth_model(checkpoint or _shipped_checkpoint())
-    region = None
-    if mask is not None:
-        image = cv2.imread(str(mask), cv2.IMREAD_GRAYSCALE)
-        if image is None:
-            raise InputError(f"cannot read mask image {mask}")
-        region = image > 127
-    seq = open_sequence(input, (model.config.height, model.config.width), region)
+    seq = open_sequence(input, (model.config.height, model.config.width), _read_mask(mask))
     write_depth_outputs(out, seq, infer_sequence(model, seq, progress=True))
     typer.echo(str(out))
 

@@ -51,15 +51,18 @@ class ProcedureSamples:
 
 @torch.no_grad()
 def predicted_depth(model: DepthModel, seq: FrameSequence, batch: int = 32,
-                    progress: bool = False) -> np.ndarray:
-    """(N, H, W) depth of every frame of seq at the depth network's size."""
+                    progress: bool = False, out: np.ndarray | None = None) -> np.ndarray:
+    """(N, H, W) depth of every frame of seq at the depth network's size, written into `out`
+    (e.g. a memory map, to stream a long video) when given."""
     model.eval()
-    out = []
+    if out is None:
+        out = np.empty((seq.num_frames, *seq.size), dtype=np.float32)
     for start in tqdm(range(0, seq.num_frames, batch), desc=f"depth {Path(seq.name).name}",
                       unit="batch", disable=not progress):
         ids = range(start, min(start + batch, seq.num_frames))
-        out.append(model.depth(to_tensor(np.stack([seq.frame(i) for i in ids])))[:, 0].numpy())
-    return np.concatenate(out)
+        images = to_tensor(np.stack([seq.frame(i) for i in ids]))
+        out[ids.start:ids.stop] = model.depth(images)[:, 0].numpy()
+    return out
 
 
 def video_inputs(seq: FrameSequence, depth_model: DepthModel, config: CoverageConfig,

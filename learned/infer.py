@@ -21,7 +21,7 @@ import torch
 from tqdm import tqdm
 
 from hybrid.types import Camera, InputError
-from learned.frames import FrameSequence
+from learned.frames import Crop, FrameSequence
 from learned.geometry import transform_from
 from learned.model import DepthModel, to_tensor
 
@@ -120,20 +120,25 @@ def _mean_transform(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
     return mean
 
 
-def aggregate_intrinsics(K_pairs: np.ndarray, seq: FrameSequence) -> dict:
-    """Median K over pairs in the input's pixels, with the spread (std, IQR) of each entry."""
-    height, width = seq.size
-    cams = [seq.crop.camera_to_input(Camera(width, height, K[0, 0], K[1, 1], K[0, 2], K[1, 2],
-                                            seq.fps)) for K in K_pairs]
+def aggregate_intrinsics(K_pairs: np.ndarray, size: tuple[int, int], crop: Crop, fps: float
+                         ) -> dict:
+    """Median K over pairs in the input's pixels, with the spread (std, IQR) of each entry, and
+    the median K at the network's size (H, W) under 'network'."""
+    height, width = size
+    cams = [crop.camera_to_input(Camera(width, height, K[0, 0], K[1, 1], K[0, 2], K[1, 2], fps))
+            for K in K_pairs]
     table = {k: np.array([getattr(c, k) for c in cams]) for k in ("fx", "fy", "cx", "cy")}
-    out = {"width": seq.crop.input_width, "height": seq.crop.input_height, "fps": seq.fps}
+    out = {"width": crop.input_width, "height": crop.input_height, "fps": fps}
     out.update({k: float(np.median(v)) for k, v in table.items()})
     out["spread"] = {k: {"std": float(v.std()),
                          "iqr": float(np.subtract(*np.percentile(v, [75, 25])))}
                      for k, v in table.items()}
     out["pairs"] = len(cams)
-    out["crop"] = vars(seq.crop)
+    out["crop"] = vars(crop)
     out["network_size"] = {"height": height, "width": width}
+    K = np.median(K_pairs, axis=0)
+    out["network"] = {"fx": float(K[0, 0]), "fy": float(K[1, 1]), "cx": float(K[0, 2]),
+                      "cy": float(K[1, 2])}
     return out
 
 
@@ -146,5 +151,5 @@ def write_depth_outputs(out: Path, seq: FrameSequence, result: DepthOutput) -> N
     cv2.imwrite(str(out / "region.png"), seq.region.astype(np.uint8) * 255)
     np.save(out / "relative_poses.npy", result.relative)
     np.save(out / "poses.npy", result.poses)
-    intrinsics = aggregate_intrinsics(result.K_pairs, seq)
+    intrinsics = aggregate_intrinsics(result.K_pairs, seq.size, seq.crop, seq.fps)
     (out / "intrinsics.json").write_text(json.dumps(intrinsics, indent=1) + "\n")

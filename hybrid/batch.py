@@ -1,0 +1,121 @@
+"""Batch runs: every video in a folder, each in its own work directory, failures isolated.
+
+Writes out/<video name>/ per video (see hybrid.pipeline), out/<video name>/error.txt when a
+video fails, and out/summary.csv (one row per video, rewritten atomically after each video).
+A video whose report exists is skipped; an interrupted one resumes at its first missing stage.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import os
+import traceback
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+from hybrid import workdir as W
+from hybrid.pipeline import Models, RunConfig, run_video
+from hybrid.types import InputError
+from learned.frames import VIDEO_SUFFIXES
+
+SUMMARY = "summary.csv"
+FIELDS = ("video", "status", "frames", "seconds_of_video", "segments", "mean_learned",
+          "mean_geometric", "agreement", "deficient_segments", "not_assessable", "warnings",
+          "error")
+
+
+def list_videos(folder: Path) -> list[Path]:
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise InputError(f"video folder not found: {folder}")
+    videos = sorted(p for p in folder.iterdir() if p.suffix.lower() in VIDEO_SUFFIXES)
+    if not videos:
+        raise InputError(f"no videos ({', '.join(sorted(VIDEO_SUFFIXES))}) in {folder}")
+    return videos
+
+
+def run_batch(folder: Path, out: Path, config: RunConfig | None = None, workers: int = 1,
+              progress: bool = True) -> Path:
+    """Run every video; returns the summary CSV's path."""
+    config = config or RunConfig()
+    videos = list_videos(folder)
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    rows: dict[str, dict] = {}
+    bar = tqdm(total=len(videos), desc="videos", unit="video", disable=not progress)
+    if workers == 1:
+        models = Models.load(config)
+        for video in videos:
+            rows[video.name] = _run_one(video, out / video.name, config, models)
+            _write_summary(out, videos, rows)
+            bar.update(1)
+    else:
+        threads = max(1, (os.cpu_count() or 1) // workers)
+        with ProcessPoolExecutor(workers) as pool:
+            futures = {pool.submit(_run_one, v, out / v.name, config, None, threads): v
+                       for v in videos}
+            for future in futures:
+                rows[futures[future].name] = future.result()
+                _write_summary(out, videos, rows)
+                bar.update(1)
+    bar.close()
+    return out / SUMMARY
+
+
+def _run_one(video: Path, work: Path, config: RunConfig, models: Models | None,
+             threads: int | None = None) -> dict:
+    """One video; any failure becomes a row with its error (and work/error.txt)."""
+    if threads:
+        import torch
+
+        torch.set_num_threads(threads)
+    error_file = work / "error.txt"
+    try:
+        done_before = (work / W.REPORT).is_file()
+        result = run_video(video, work, config, models, progress=False)
+        if error_file.is_file():
+            error_file.unlink()
+        row = _summarise(work)
+        row.update(status="done before" if done_before else "done",
+                   warnings="; ".join(result["warnings"]))
+    except Exception as err:  # isolate every failure, expected or not, to its video
+        work.mkdir(parents=True, exist_ok=True)
+        message = str(err) if isinstance(err, InputError) else traceback.format_exc()
+        W.write_text(error_file, message + "\n")
+        row = {"status": "failed", "error": str(err).splitlines()[0] if str(err) else
+               type(err).__name__}
+    row["video"] = str(video)
+    return row
+
+
+def _summarise(work: Path) -> dict:
+    table = json.loads((work / W.COVERAGE_JSON).read_text())
+    ingest = json.loads((work / W.INGEST).read_text())
+    segments = table["segments"]
+
+    def mean(key: str) -> float | str:
+        values = [s[key] for s in segments if s[key] is not None]
+        return round(float(np.mean(values)), 4) if values else ""
+
+    return {"frames": ingest["frames"],
+            "seconds_of_video": round(ingest["frames"] / ingest["fps"], 2),
+            "segments": len(segments), "mean_learned": mean("learned"),
+            "mean_geometric": mean("geometric"),
+            "agreement": "" if table["agreement"] is None else round(table["agreement"], 4),
+            "deficient_segments": sum(s["deficient"] for s in segments),
+            "not_assessable": sum(not s["assessable"] for s in segments)}
+
+
+def _write_summary(out: Path, videos: list[Path], rows: dict[str, dict]) -> None:
+    text = io.StringIO()
+    writer = csv.DictWriter(text, fieldnames=FIELDS)
+    writer.writeheader()
+    for video in videos:
+        row = rows.get(video.name, {"video": str(video), "status": "pending"})
+        writer.writerow({k: row.get(k, "") for k in FIELDS})
+    W.write_text(out / SUMMARY, text.getvalue())

@@ -1,0 +1,116 @@
+"""The cross-check: learned and geometric coverage on identical segments, side by side.
+
+Reads learned.json, geometric.json (or geometric_error.txt) and ingest.json from a work
+directory; writes coverage.json and coverage.csv with one row per segment: its time range,
+both coverages (default Δ pair), their difference, both 3-class labels, whether they agree, a
+deficient flag and an assessable flag.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+
+from hybrid import workdir as W
+from hybrid.coverage import DEFAULT_PAIR_CM, pair_key
+from hybrid.ingest import Ingested
+
+CLASS_NAMES = ("mostly not covered", "partial", "mostly covered")
+CLASS_EDGES = (0.4, 0.8)
+"""3-class bins: [0, 0.4), [0.4, 0.8), [0.8, 1]."""
+
+
+def coverage_class(value: float | None) -> int | None:
+    return None if value is None else int(np.digitize(value, CLASS_EDGES))
+
+
+@dataclass
+class SegmentRow:
+    """One segment of the cross-check."""
+
+    index: int
+    start_frame: int
+    stop_frame: int
+    start_s: float
+    end_s: float
+    learned: float | None
+    geometric: float | None
+    difference: float | None
+    """learned - geometric."""
+    learned_class: int | None
+    geometric_class: int | None
+    agree: bool | None
+    """Both branches give the same 3-class label."""
+    coverage: float | None
+    """Mean of the branches that gave a value."""
+    deficient: bool
+    """Assessable and coverage below the run's threshold."""
+    assessable: bool
+    """Enough usable frames (not dark, overexposed or blurred)."""
+    usable_fraction: float
+
+
+@dataclass
+class CrossCheck:
+    rows: list[SegmentRow]
+    deficient_below: float
+    min_usable_fraction: float
+    geometric_error: str | None = None
+
+    @property
+    def agreement(self) -> float | None:
+        """Fraction of segments with both values whose 3-class labels agree."""
+        both = [r.agree for r in self.rows if r.agree is not None]
+        return float(np.mean(both)) if both else None
+
+    def to_json(self) -> dict:
+        return {"default_pair_cm": list(DEFAULT_PAIR_CM),
+                "class_edges": list(CLASS_EDGES), "class_names": list(CLASS_NAMES),
+                "deficient_below": self.deficient_below,
+                "min_usable_fraction": self.min_usable_fraction,
+                "agreement": self.agreement, "geometric_error": self.geometric_error,
+                "segments": [asdict(r) for r in self.rows]}
+
+    def save(self, json_path: Path, csv_path: Path) -> None:
+        W.write_json(json_path, self.to_json())
+        text = io.StringIO()
+        writer = csv.DictWriter(text, fieldnames=list(asdict(self.rows[0])) if self.rows else [])
+        writer.writeheader()
+        for row in self.rows:
+            writer.writerow({k: "" if v is None else v for k, v in asdict(row).items()})
+        W.write_text(csv_path, text.getvalue())
+
+
+def cross_check(out: Path, ingested: Ingested, config) -> CrossCheck:
+    """Join the branches' segment coverages (config: a RunConfig's thresholds)."""
+    out = Path(out)
+    learned = json.loads((out / W.LEARNED).read_text())["segments"]
+    geometric, error = {}, None
+    if (out / W.GEOMETRIC).is_file():
+        key = pair_key(DEFAULT_PAIR_CM)
+        geometric = {s["index"]: s["coverage"][key]
+                     for s in json.loads((out / W.GEOMETRIC).read_text())["segments"]}
+    elif (out / "geometric_error.txt").is_file():
+        error = (out / "geometric_error.txt").read_text().strip()
+    usable = ingested.usable
+    rows = []
+    for segment in learned:
+        index, start, stop = segment["index"], segment["start"], segment["stop"]
+        value_l, value_g = segment["coverage"], geometric.get(index)
+        values = [v for v in (value_l, value_g) if v is not None]
+        mean = float(np.mean(values)) if values else None
+        fraction = float(usable[start:stop].mean())
+        assessable = fraction >= config.min_usable_fraction
+        classes = coverage_class(value_l), coverage_class(value_g)
+        rows.append(SegmentRow(
+            index, start, stop, round(start / ingested.fps, 3), round(stop / ingested.fps, 3),
+            value_l, value_g, None if value_g is None else value_l - value_g,
+            classes[0], classes[1], None if value_g is None else classes[0] == classes[1],
+            mean, bool(assessable and mean is not None and mean < config.deficient_below),
+            bool(assessable), fraction))
+    return CrossCheck(rows, config.deficient_below, config.min_usable_fraction, error)

@@ -1,0 +1,186 @@
+"""Ingestion: any recorded video (or image folder, or simulated procedure) into frames at the
+networks' size, streamed, with the image region and per-frame quality flags.
+
+Reads the input twice, one frame at a time, so memory does not grow with the video's length:
+pass 1 finds the image region (pixels that are ever brighter than the border: black border,
+circular or octagonal mask; the largest bright component, holes filled, so static overlays in
+the border drop out) and counts the frames; pass 2 crops to the region's bounding box, resizes
+and writes `frames.npy` (N, H, W, 3) uint8 through a memory map. Frames keep the video's own
+rate; segments are cut by time downstream.
+
+Quality flags per frame (inside the region): dark (mean grey < 30), overexposed (over 25% of
+pixels above 245), blurred (variance of the Laplacian of the grey frame below 20 at the
+networks' size). A video that stops decoding before its container's frame count is kept up to
+the last good frame and the loss is recorded (`decode_warning`).
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable, Iterator
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+from tqdm import tqdm
+
+from hybrid.types import InputError
+from learned.frames import IMAGE_SUFFIXES, VIDEO_SUFFIXES, Crop, detect_region
+
+DARK_GREY = 30
+"""Mean grey level (0-255) under which a frame is too dark."""
+OVEREXPOSED_FRACTION = 0.25
+"""Fraction of pixels above 245 over which a frame is overexposed."""
+BLUR_VARIANCE = 20.0
+"""Variance of the Laplacian under which a frame is blurred (or featureless)."""
+
+
+@dataclass
+class Ingested:
+    """What ingestion wrote, as recorded in ingest.json."""
+
+    source: str
+    fps: float
+    frames: int
+    input_width: int
+    input_height: int
+    crop: dict
+    dark: list[bool]
+    overexposed: list[bool]
+    blurred: list[bool]
+    decode_warning: str | None = None
+
+    @property
+    def usable(self) -> np.ndarray:
+        return ~(np.array(self.dark) | np.array(self.overexposed) | np.array(self.blurred))
+
+    def save(self, path: Path) -> None:
+        Path(path).write_text(json.dumps(asdict(self)) + "\n")
+
+    @classmethod
+    def load(cls, path: Path) -> Ingested:
+        return cls(**json.loads(Path(path).read_text()))
+
+
+@dataclass
+class _Source:
+    name: str
+    fps: float
+    open: Callable[[], Iterator[np.ndarray]]
+    """A fresh iterator over the RGB frames."""
+    count_hint: int
+    """The container's frame count (0 if unknown)."""
+    region: np.ndarray | None = None
+
+
+def ingest(path: Path, size: tuple[int, int], frames_out: Path, region: np.ndarray | None = None,
+           fps: float | None = None, progress: bool = False) -> tuple[Ingested, np.ndarray]:
+    """Write frames_out (N, H, W, 3) uint8 and return the record and the region at (H, W)."""
+    source = _open(Path(path), fps)
+    first_pass = tqdm(source.open(), total=source.count_hint or None, unit="frame",
+                      desc=f"scan {Path(path).name}", disable=not progress)
+    brightest, count, shape = None, 0, None
+    for frame in first_pass:
+        if shape is None:
+            shape = frame.shape
+        elif frame.shape != shape:
+            raise InputError(f"{path}: frame {count} is {frame.shape}, the first was {shape}")
+        grey = cv2.cvtColor(frame, cv2.COLOR_RGB2GRAY)
+        brightest = grey if brightest is None else np.maximum(brightest, grey)
+        count += 1
+    if count == 0:
+        raise InputError(f"{path}: no frames could be decoded (empty or corrupt video)")
+    if count < 2:
+        raise InputError(f"{path}: only 1 frame; C2D2 needs a video")
+    if region is None:
+        region = source.region if source.region is not None else detect_region(
+            [np.repeat(brightest[..., None], 3, axis=2)])
+    if region.shape != shape[:2] or not region.any():
+        raise InputError(f"{path}: the image region must be a non-empty mask of the frame size "
+                         f"{shape[:2]}, got {region.shape}")
+    ys, xs = np.nonzero(region)
+    crop = Crop(int(xs.min()), int(ys.min()), int(xs.max() - xs.min() + 1),
+                int(ys.max() - ys.min() + 1), shape[1], shape[0])
+    height, width = size
+
+    def fit(image: np.ndarray, interpolation: int) -> np.ndarray:
+        cut = image[crop.y0:crop.y0 + crop.height, crop.x0:crop.x0 + crop.width]
+        return cv2.resize(cut, (width, height), interpolation=interpolation)
+
+    small_region = fit(region.astype(np.uint8), cv2.INTER_NEAREST).astype(bool)
+    frames_out = Path(frames_out)
+    tmp = frames_out.with_name(frames_out.name + ".partial.npy")
+    stack = np.lib.format.open_memmap(tmp, mode="w+", dtype=np.uint8,
+                                      shape=(count, height, width, 3))
+    dark, bright, blurred = [], [], []
+    for index, frame in enumerate(tqdm(source.open(), total=count, unit="frame",
+                                       desc=f"ingest {Path(path).name}", disable=not progress)):
+        if index == count:
+            break
+        small = fit(frame, cv2.INTER_AREA)
+        stack[index] = small
+        grey = cv2.cvtColor(small, cv2.COLOR_RGB2GRAY)
+        inside = grey[small_region]
+        dark.append(bool(inside.mean() < DARK_GREY))
+        bright.append(bool((inside > 245).mean() > OVEREXPOSED_FRACTION))
+        blurred.append(bool(cv2.Laplacian(grey, cv2.CV_64F)[small_region].var() < BLUR_VARIANCE))
+    stack.flush()
+    del stack
+    tmp.replace(frames_out)
+    warning = None
+    if source.count_hint > count:
+        warning = (f"decoding stopped at frame {count} of the {source.count_hint} the container "
+                   f"declares (corrupt video); frames {count}-{source.count_hint - 1} are lost")
+    record = Ingested(source.name, source.fps, count, shape[1], shape[0], asdict(crop), dark,
+                      bright, blurred, warning)
+    return record, small_region
+
+
+def _open(path: Path, fps: float | None) -> _Source:
+    if not path.exists():
+        raise InputError(f"input not found: {path}")
+    if path.is_dir() and (path / "rgb").is_dir() and (path / "camera.json").is_file():
+        from hybrid.dataset import Procedure
+
+        proc = Procedure.open(path)
+        frames = range(proc.num_frames)
+        region = np.ones((proc.camera.height, proc.camera.width), dtype=bool)
+        return _Source(str(path), fps or proc.camera.fps, lambda: map(proc.rgb, frames),
+                       proc.num_frames, region)
+    if path.is_dir():
+        files = sorted(p for p in path.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
+        if not files:
+            raise InputError(f"{path}: no images ({', '.join(sorted(IMAGE_SUFFIXES))}) in folder")
+        return _Source(str(path), fps or 30.0, lambda: map(_read_image, files), len(files))
+    if path.suffix.lower() not in VIDEO_SUFFIXES:
+        raise InputError(f"{path}: not a video ({', '.join(sorted(VIDEO_SUFFIXES))}), a folder "
+                         f"of images or a simulated procedure")
+    capture = cv2.VideoCapture(str(path))
+    if not capture.isOpened():
+        raise InputError(f"cannot open video {path}: unreadable or not a video")
+    rate = fps or capture.get(cv2.CAP_PROP_FPS)
+    count = int(capture.get(cv2.CAP_PROP_FRAME_COUNT) or 0)
+    capture.release()
+    if not rate or not np.isfinite(rate) or rate <= 0:
+        raise InputError(f"{path}: the video declares no frame rate; give one with --fps")
+    return _Source(str(path), float(rate), lambda: _decode(path), max(count, 0))
+
+
+def _decode(path: Path) -> Iterator[np.ndarray]:
+    capture = cv2.VideoCapture(str(path))
+    try:
+        while True:
+            ok, frame = capture.read()
+            if not ok:
+                return
+            yield cv2.cvtColor(frame, cv2.COLOR_BGR2RGB)
+    finally:
+        capture.release()
+
+
+def _read_image(path: Path) -> np.ndarray:
+    image = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    if image is None:
+        raise InputError(f"cannot read image {path}")
+    return cv2.cvtColor(image, cv2.COLOR_BGR2RGB)

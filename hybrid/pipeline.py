@@ -1,0 +1,306 @@
+"""The whole C2D2 pipeline on one recorded video, stage by stage, in a work directory.
+
+ingest -> depth (learned depth, K, relative poses) -> pose graph -> reconstruction (scale,
+TSDF mesh, lumen) -> geometric coverage (+ unrolled maps) -> learned coverage -> cross-check
+and report. Each stage writes its files (hybrid.workdir) atomically and is skipped when they
+exist, so an interrupted run resumes where it stopped. Long arrays (frames, depth) go through
+memory maps, so memory does not grow with the video's length.
+
+Segments are cut by time (`segment_seconds`) at the video's own frame rate; the per-segment
+network, trained on 300 frames at 30 fps, reads each segment's per-frame features resampled to
+300 by nearest frame. When the geometric branch cannot run on a video (no surface, no lumen),
+its error is recorded and the learned branch still reports.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+import torch
+
+from fusion.posegraph import PoseGraphConfig, chain, smooth_trajectory
+from hybrid import __version__
+from hybrid import workdir as W
+from hybrid.crosscheck import cross_check
+from hybrid.geometric_coverage import GeometricConfig, geometric_coverage
+from hybrid.ingest import Ingested, ingest
+from hybrid.lumen_fit import FittedLumen
+from hybrid.reconstruction import ReconstructionConfig, ScaledDepth, reconstruct
+from hybrid.types import Camera, InputError
+from learned.coverage_data import predicted_depth
+from learned.coverage_nets import CoverageModel, load_coverage_model, normalise_depth
+from learned.frames import Crop, FrameSequence
+from learned.infer import aggregate_intrinsics, relative_poses
+from learned.model import DepthModel, load_depth_model, to_tensor
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class RunConfig:
+    """Everything a run depends on besides the video."""
+
+    depth_checkpoint: str | None = None
+    """Depth + motion + intrinsics model (None: the shipped fast one)."""
+    coverage_checkpoint: str | None = None
+    """Coverage networks (None: the shipped fast ones)."""
+    fps: float | None = None
+    """Override the video's frame rate (image folders default to 30)."""
+    segment_seconds: float = 10.0
+    """Segment length."""
+    min_usable_fraction: float = 0.5
+    """A segment is assessable when at least this fraction of its frames is usable."""
+    deficient_below: float = 0.4
+    """A segment is deficient when its coverage (mean of the branches that ran) is below this:
+    the 'mostly not covered' class of the 3-class bins."""
+    posegraph: PoseGraphConfig = field(default_factory=PoseGraphConfig)
+    reconstruction: ReconstructionConfig = field(default_factory=ReconstructionConfig)
+    geometric: GeometricConfig = field(default_factory=GeometricConfig)
+
+
+@dataclass
+class Models:
+    depth: DepthModel
+    coverage: CoverageModel
+
+    @classmethod
+    def load(cls, config: RunConfig) -> Models:
+        from learned.checkpoints import SHIPPED_COVERAGE, SHIPPED_DEPTH
+
+        depth = load_depth_model(Path(config.depth_checkpoint or SHIPPED_DEPTH))
+        coverage = load_coverage_model(Path(config.coverage_checkpoint or SHIPPED_COVERAGE))
+        return cls(depth, coverage)
+
+
+class _Run:
+    """One video's work directory and what its stages share."""
+
+    def __init__(self, source: Path, out: Path, config: RunConfig, models: Models,
+                 region: np.ndarray | None, progress: bool):
+        self.source, self.out, self.config, self.models = source, out, config, models
+        self.region_input, self.progress = region, progress
+        self.size = (models.depth.config.height, models.depth.config.width)
+
+    def path(self, name: str) -> Path:
+        return self.out / name
+
+    @property
+    def ingested(self) -> Ingested:
+        return Ingested.load(self.path(W.INGEST))
+
+    @property
+    def region(self) -> np.ndarray:
+        return cv2.imread(str(self.path(W.REGION)), cv2.IMREAD_GRAYSCALE) > 127
+
+    def frames(self) -> np.ndarray:
+        return np.load(self.path(W.FRAMES), mmap_mode="r")
+
+    def depth(self) -> np.ndarray:
+        return np.load(self.path(W.DEPTH), mmap_mode="r")
+
+    def sequence(self) -> FrameSequence:
+        frames = self.frames()
+        return FrameSequence(self.source.name, self.ingested.fps, self.size, frames.__getitem__,
+                             len(frames), region=np.ones(self.size, dtype=bool))
+
+    @property
+    def segment_frames(self) -> int:
+        return max(2, round(self.config.segment_seconds * self.ingested.fps))
+
+    # --- stages ---------------------------------------------------------------------------
+
+    def ingest(self) -> None:
+        record, region = ingest(self.source, self.size, self.path(W.FRAMES), self.region_input,
+                                self.config.fps, self.progress)
+        cv2.imwrite(str(self.path(W.REGION)), region.astype(np.uint8) * 255)
+        record.save(self.path(W.INGEST))
+
+    def check_length(self) -> None:
+        record = self.ingested
+        if record.frames < self.segment_frames:
+            raise InputError(f"{self.source}: {record.frames} frames at {record.fps:g} fps "
+                             f"({record.frames / record.fps:.1f} s) is shorter than one "
+                             f"{self.config.segment_seconds:g}-s segment")
+
+    def depth_stage(self) -> None:
+        seq = self.sequence()
+        tmp = self.path(W.DEPTH + ".partial.npy")
+        out = np.lib.format.open_memmap(tmp, mode="w+", dtype=np.float16,
+                                        shape=(seq.num_frames, *self.size))
+        model = self.models.depth
+        predicted_depth(model, seq, progress=self.progress, out=out)
+        out.flush()
+        del out
+        gaps = tuple(g for g in self.config.posegraph.skips if g < seq.num_frames)
+        relative = relative_poses(model, seq, gaps, progress=self.progress)
+        np.savez(self.path(W.RELATIVE + ".partial.npz"),
+                 **{f"gap{g}": r for g, r in relative.items()})
+        self.path(W.RELATIVE + ".partial.npz").replace(self.path(W.RELATIVE))
+        W.write_json(self.path(W.INTRINSICS), aggregate_intrinsics(
+            _sample_intrinsics(model, seq), self.size, Crop(**self.ingested.crop), seq.fps))
+        tmp.replace(self.path(W.DEPTH))
+
+    def posegraph(self) -> None:
+        with np.load(self.path(W.RELATIVE)) as data:
+            relative = {int(k[3:]): data[k] for k in data.files}
+        result = smooth_trajectory(relative, self.config.posegraph, name=str(self.source))
+        np.save(self.path(W.POSES_RAW), chain(relative[1]))
+        np.save(self.path(W.POSES + ".partial.npy"), result.poses)
+        self.path(W.POSES + ".partial.npy").replace(self.path(W.POSES))
+
+    def reconstruction(self) -> None:
+        frames = self.frames()
+        rec = reconstruct(self.depth(), self.network_K(), np.load(self.path(W.POSES)),
+                          rgb=frames, region=self.region, config=self.config.reconstruction,
+                          fps=self.ingested.fps, name=self.source.name, progress=self.progress)
+        rec.mesh.save(self.path(W.MESH))
+        rec.lumen.save(self.path(W.LUMEN))
+        W.write_json(self.path(W.RECONSTRUCTION), {"scale_cm_per_unit": rec.scale,
+                                                   "typical_radius_cm":
+                                                       self.config.reconstruction
+                                                       .typical_radius_cm})
+
+    def geometric(self) -> None:
+        scale = json.loads(self.path(W.RECONSTRUCTION).read_text())["scale_cm_per_unit"]
+        poses = np.load(self.path(W.POSES)).copy()
+        poses[:, :3, 3] *= scale
+        config = GeometricConfig(**{**asdict(self.config.geometric),
+                                    "segment_frames": self.segment_frames})
+        result = geometric_coverage(FittedLumen.load(self.path(W.LUMEN)), poses,
+                                    ScaledDepth(self.depth(), scale), self.network_K(),
+                                    self.region, config, progress=self.progress,
+                                    name=self.source.name)
+        maps = self.path(W.MAPS)
+        maps.mkdir(exist_ok=True)
+        result.save_map(maps / "coverage_map.npz")
+        result.plot_map(maps / "coverage_map.png", title=f"{self.source.name}: wall seen "
+                        f"(green) and missed (red)")
+        W.write_json(self.path(W.GEOMETRIC), {"segments": [vars(s) for s in result.segments]})
+
+    def learned(self) -> None:
+        model = self.models.coverage
+        depth = self.depth()
+        region = self.region
+        size = (model.config.height, model.config.width)
+        per_frame, features = [], []
+        for start in range(0, len(depth), 512):
+            inputs = normalise_depth(np.asarray(depth[start:start + 512], np.float32), region,
+                                     size, name=self.source.name)
+            coverage, feats = model.frame_outputs(inputs)
+            per_frame.append(coverage)
+            features.append(feats)
+        per_frame, features = np.concatenate(per_frame), np.concatenate(features)
+        L, T = self.segment_frames, model.config.segment_frames
+        segments = []
+        for index, start in enumerate(range(0, len(depth) - L + 1, L)):
+            picks = start + np.minimum((np.arange(T) * L / T).astype(int), L - 1)
+            value = float(model.segment_outputs(features[picks], [0])[0])
+            segments.append({"index": index, "start": start, "stop": start + L,
+                             "coverage": value})
+        W.write_json(self.path(W.LEARNED), {
+            "delta_pairs_cm": [[1.0, 3.0], [1.0, 4.0], [1.0, 6.0]],
+            "per_frame": per_frame.round(5).tolist(), "segments": segments})
+
+    def report(self) -> None:
+        from hybrid.report import write_report
+
+        table = cross_check(self.out, self.ingested, self.config)
+        table.save(self.path(W.COVERAGE_JSON), self.path(W.COVERAGE_CSV))
+        write_report(self.out, table, self.ingested)
+
+    def network_K(self) -> np.ndarray:
+        data = json.loads(self.path(W.INTRINSICS).read_text())
+        return Camera(self.size[1], self.size[0], **data["network"]).K
+
+
+@torch.no_grad()
+def _sample_intrinsics(model: DepthModel, seq: FrameSequence, pairs: int = 64) -> np.ndarray:
+    """K (M, 3, 3) of up to `pairs` consecutive pairs spread over the video."""
+    starts = np.unique(np.linspace(0, seq.num_frames - 2, pairs).astype(int))
+    a = to_tensor(np.stack([seq.frame(t) for t in starts]))
+    b = to_tensor(np.stack([seq.frame(t + 1) for t in starts]))
+    return model.pair_motion(a, b)[-1].numpy().astype(np.float64)
+
+
+GEOMETRIC_STAGES = ("posegraph", "reconstruction", "geometric")
+
+
+def run_video(source: Path, out: Path, config: RunConfig = RunConfig(),
+              models: Models | None = None, region: np.ndarray | None = None,
+              progress: bool = True, echo: Callable[[str], None] = log.info) -> dict:
+    """Run (or resume) every stage; returns {'timing': seconds per stage, 'warnings': [...]}.
+
+    Raises InputError for bad input; a geometric-branch failure is recorded, not raised.
+    """
+    source, out = Path(source), Path(out)
+    _prepare(out, config)
+    run = _Run(source, out, config, models or Models.load(config), region, progress)
+    stages: list[tuple[str, Callable[[], None], list[str]]] = [
+        ("ingest", run.ingest, [W.FRAMES, W.INGEST, W.REGION]),
+        ("depth", run.depth_stage, [W.DEPTH, W.RELATIVE, W.INTRINSICS]),
+        ("posegraph", run.posegraph, [W.POSES]),
+        ("reconstruction", run.reconstruction, [W.RECONSTRUCTION]),
+        ("geometric", run.geometric, [W.GEOMETRIC]),
+        ("learned", run.learned, [W.LEARNED]),
+        ("report", run.report, [W.REPORT]),
+    ]
+    timing_path = out / W.TIMING
+    timing = json.loads(timing_path.read_text()) if timing_path.is_file() else {}
+    warnings = []
+    geometric_error = out / "geometric_error.txt"
+    for name, stage, outputs in stages:
+        if all((out / o).exists() for o in outputs):
+            echo(f"{name}: done before, skipped")
+            continue
+        if name in GEOMETRIC_STAGES and geometric_error.is_file():
+            continue
+        tic = time.time()
+        try:
+            stage()
+        except InputError as err:
+            if name not in GEOMETRIC_STAGES:
+                raise
+            geometric_error.write_text(f"{name}: {err}\n")
+            warnings.append(f"geometric branch failed at {name}: {err}")
+            continue
+        finally:
+            timing[name] = round(time.time() - tic, 2)
+            W.write_json(timing_path, timing)
+        frames = run.ingested.frames
+        echo(f"{name}: {timing[name]:.1f} s ({frames / max(timing[name], 1e-9):.0f} frames/s)")
+        if name == "ingest":
+            run.check_length()
+    decode = run.ingested.decode_warning
+    if decode:
+        warnings.append(decode)
+    if geometric_error.is_file() and not warnings:
+        warnings.append(f"geometric branch failed: {geometric_error.read_text().strip()}")
+    return {"timing": timing, "warnings": warnings}
+
+
+def _prepare(out: Path, config: RunConfig) -> None:
+    """Create the work directory; refuse one that holds a run with another config."""
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        probe = out / ".write-test"
+        probe.write_text("")
+        probe.unlink()
+    except OSError as err:
+        raise InputError(f"cannot write to the output folder {out}: {err.strerror}; choose "
+                         f"another --out") from err
+    saved = out / W.CONFIG
+    resolved = {"config": json.loads(json.dumps(asdict(config))), "c2d2_version": __version__}
+    if saved.is_file():
+        previous = json.loads(saved.read_text())
+        if previous.get("config") != resolved["config"]:
+            raise InputError(f"{out} holds a run made with another configuration; use another "
+                             f"--out or delete it to start again")
+    else:
+        W.write_json(saved, resolved)

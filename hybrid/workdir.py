@@ -1,0 +1,61 @@
+"""Names of the files in the work directory of one video, and atomic writes.
+
+A stage writes its outputs under temporary names and renames them when complete, so a file
+with its final name is always whole and a stage whose outputs exist can be skipped.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+FRAMES = "frames.npy"
+"""(N, H, W, 3) uint8 frames at the networks' size, cropped to the image region."""
+REGION = "region.png"
+"""The image region at the networks' size (white = image)."""
+INGEST = "ingest.json"
+"""Source, frame rate, crop, per-frame quality flags, decoding warning."""
+DEPTH = "depth.npy"
+"""(N, H, W) float16 predicted depth (unknown scale)."""
+RELATIVE = "relative_poses.npz"
+"""Relative poses per frame gap ('gap1', 'gap2', ...): camera t -> camera t+g."""
+INTRINSICS = "intrinsics.json"
+"""K at the networks' size and in the input's pixels, with its spread."""
+POSES_RAW = "poses_raw.npy"
+"""(N, 4, 4) camera-to-world poses chained from consecutive relative poses."""
+POSES = "poses_smoothed.npy"
+"""(N, 4, 4) camera-to-world poses after the pose graph (unknown scale)."""
+MESH = "mesh.ply"
+"""The coloured TSDF mesh, cm."""
+LUMEN = "lumen.json"
+"""Fitted centreline and radius, cm."""
+RECONSTRUCTION = "reconstruction.json"
+"""Metric scale (cm per depth unit) and poses' unit."""
+GEOMETRIC = "geometric.json"
+"""Geometric coverage per segment."""
+MAPS = "maps"
+"""Unrolled (ℓ, θ) maps of seen and missed wall: coverage_map.png and coverage_map.npz."""
+LEARNED = "learned.json"
+"""Learned coverage per frame (three Δ pairs) and per segment."""
+COVERAGE_JSON = "coverage.json"
+COVERAGE_CSV = "coverage.csv"
+"""The cross-check: per segment, both coverages, their agreement and flags."""
+REPORT = "report.html"
+CONFIG = "config.json"
+"""The resolved run configuration and the package version."""
+TIMING = "timing.json"
+"""Seconds per stage."""
+
+
+def write_text(path: Path, text: str) -> Path:
+    """Write a text file atomically."""
+    path = Path(path)
+    tmp = path.with_name(path.name + ".partial")
+    tmp.write_text(text)
+    os.replace(tmp, path)
+    return path
+
+
+def write_json(path: Path, data) -> Path:
+    return write_text(path, json.dumps(data, indent=1) + "\n")
