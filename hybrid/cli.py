@@ -138,12 +138,21 @@ def run(
     coverage_checkpoint: Annotated[Path | None, typer.Option(help="Coverage model, e.g. one "
                                                              "adapted with `c2d2 adapt` "
                                                              "(default: shipped).")] = None,
+    insertion: Annotated[bool, typer.Option(help="The video is an insertion, not a withdrawal "
+                                            "(the look-ahead band lies where the camera is "
+                                            "going).")] = False,
 ):
     """The whole pipeline on one video: coverage.json/.csv, mesh.ply, maps/, report.html."""
+    from dataclasses import replace
+
     from hybrid.pipeline import RunConfig, run_video
 
     config = RunConfig(depth_checkpoint=_opt(depth_checkpoint),
                        coverage_checkpoint=_opt(coverage_checkpoint), fps=fps)
+    if insertion:
+        rec = config.reconstruction
+        config = replace(config, reconstruction=replace(
+            rec, lumen=replace(rec.lumen, withdrawal=False)))
     result = run_video(video, out, config, region=_read_mask(mask), echo=typer.echo)
     table = json.loads((out / "coverage.json").read_text())
     typer.echo("segment  time (s)      learned  geometric  agree  deficient  assessable")

@@ -5,8 +5,9 @@ back-projected depth) in one unit, and returns a `FittedLumen` parametrised by a
 
 1. Stations: the camera centres, smoothed over time, resampled every `spacing` along their
    path; a station closer than spacing/2 to an earlier one is a return visit and is dropped.
-   The video is taken to be a withdrawal, so ℓ grows from where the camera ends towards where
-   it started (towards the cecum, where the look-ahead Δ1 of the coverage definition points).
+   The video is taken to be a withdrawal (unless configured as an insertion), so ℓ grows from
+   where the camera ends towards where it started: towards the cecum, where the look-ahead Δ1
+   of the coverage definition points.
    The path is continued straight on beyond its deep end, to cover the look-ahead band, and a
    little beyond its other end.
 2. Cross-sections: at each station, the surface points in a slab one spacing thick normal to
@@ -51,6 +52,9 @@ class LumenFitConfig:
     """Fewest occupied 30° sectors (of 12) for a cross-section fit: half a circle."""
     iterations: int = 2
     """Fit passes; each pass after the first uses the previous centreline as the path."""
+    withdrawal: bool = True
+    """The video withdraws the endoscope (ℓ grows back in time, towards where the camera
+    started); False for an insertion (ℓ grows forward in time)."""
     extend: float = 3.5
     """The path is continued this far (× r0) beyond its end in the direction the cameras look,
     where the look-ahead band of the coverage definition lies."""
@@ -104,7 +108,9 @@ def fit_lumen(poses: np.ndarray, surface: np.ndarray, fps: float = 30.0,
     if not r0 > 0:
         raise InputError(f"{name}: the surface lies on the camera path; no lumen to fit")
     spacing = config.spacing * r0
-    path = _stations(centres, spacing)[::-1]  # a withdrawal: ℓ grows back in time
+    path = _stations(centres, spacing)
+    if config.withdrawal:
+        path = path[::-1]
     if len(path) < 4:
         raise InputError(f"{name}: the camera moves {_length(centres):.3g} units, less than a "
                          f"few cross-sections ({4 * spacing:.3g}); too short for a lumen fit")

@@ -258,23 +258,20 @@ def run_video(source: Path, out: Path, config: RunConfig = RunConfig(),
     for name, stage, outputs in stages:
         if all((out / o).exists() for o in outputs):
             echo(f"{name}: done before, skipped")
-            continue
-        if name in GEOMETRIC_STAGES and geometric_error.is_file():
-            continue
-        tic = time.time()
-        try:
-            stage()
-        except InputError as err:
-            if name not in GEOMETRIC_STAGES:
-                raise
-            geometric_error.write_text(f"{name}: {err}\n")
-            warnings.append(f"geometric branch failed at {name}: {err}")
-            continue
-        finally:
-            timing[name] = round(time.time() - tic, 2)
-            W.write_json(timing_path, timing)
-        frames = run.ingested.frames
-        echo(f"{name}: {timing[name]:.1f} s ({frames / max(timing[name], 1e-9):.0f} frames/s)")
+        elif not (name in GEOMETRIC_STAGES and geometric_error.is_file()):
+            tic = time.time()
+            try:
+                stage()
+            except InputError as err:
+                if name not in GEOMETRIC_STAGES:
+                    raise
+                geometric_error.write_text(f"{name}: {err}\n")
+                warnings.append(f"geometric branch failed at {name}: {err}")
+            finally:
+                timing[name] = round(time.time() - tic, 2)
+                W.write_json(timing_path, timing)
+            rate = run.ingested.frames / max(timing[name], 1e-9)
+            echo(f"{name}: {timing[name]:.1f} s ({rate:.0f} frames/s)")
         if name == "ingest":
             run.check_length()
     decode = run.ingested.decode_warning
