@@ -10,8 +10,9 @@ rate; segments are cut by time downstream.
 
 Quality flags per frame (inside the region): dark (mean grey < 30), overexposed (over 25% of
 pixels above 245), blurred (variance of the Laplacian of the grey frame below 20 at the
-networks' size). A video that stops decoding before its container's frame count is kept up to
-the last good frame and the loss is recorded (`decode_warning`).
+networks' size). A video that decodes fewer frames than its container declares (FFmpeg skips
+corrupt frames and goes on, or stops where a file is cut short) is kept with the frames that
+decode and the loss is recorded (`decode_warning`).
 """
 
 from __future__ import annotations
@@ -94,8 +95,11 @@ def ingest(path: Path, size: tuple[int, int], frames_out: Path, region: np.ndarr
     if count < 2:
         raise InputError(f"{path}: only 1 frame; C2D2 needs a video")
     if region is None:
-        region = source.region if source.region is not None else detect_region(
-            [np.repeat(brightest[..., None], 3, axis=2)])
+        try:
+            region = source.region if source.region is not None else detect_region(
+                [np.repeat(brightest[..., None], 3, axis=2)])
+        except InputError as err:
+            raise InputError(f"{path}: {err}") from err
     if region.shape != shape[:2] or not region.any():
         raise InputError(f"{path}: the image region must be a non-empty mask of the frame size "
                          f"{shape[:2]}, got {region.shape}")
@@ -130,8 +134,11 @@ def ingest(path: Path, size: tuple[int, int], frames_out: Path, region: np.ndarr
     tmp.replace(frames_out)
     warning = None
     if source.count_hint > count:
-        warning = (f"decoding stopped at frame {count} of the {source.count_hint} the container "
-                   f"declares (corrupt video); frames {count}-{source.count_hint - 1} are lost")
+        # FFmpeg skips undecodable frames and goes on, so the lost ones may be anywhere.
+        warning = (f"{source.count_hint - count} of the {source.count_hint} frames the "
+                   f"container declares could not be decoded (corrupt video) and are missing; "
+                   f"frames after a damaged part are up to "
+                   f"{(source.count_hint - count) / source.fps:.1f} s early")
     record = Ingested(source.name, source.fps, count, shape[1], shape[0], asdict(crop), dark,
                       bright, blurred, warning)
     return record, small_region

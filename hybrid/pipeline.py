@@ -192,7 +192,8 @@ class _Run:
         per_frame, features = [], []
         for start in range(0, len(depth), 512):
             inputs = normalise_depth(np.asarray(depth[start:start + 512], np.float32), region,
-                                     size, name=self.source.name)
+                                     size, name=self.source.name,
+                                     by_median=model.config.median_normalise)
             coverage, feats = model.frame_outputs(inputs)
             per_frame.append(coverage)
             features.append(feats)
@@ -240,7 +241,7 @@ def run_video(source: Path, out: Path, config: RunConfig = RunConfig(),
     Raises InputError for bad input; a geometric-branch failure is recorded, not raised.
     """
     source, out = Path(source), Path(out)
-    _prepare(out, config)
+    _prepare(out, config, source)
     run = _Run(source, out, config, models or Models.load(config), region, progress)
     stages: list[tuple[str, Callable[[], None], list[str]]] = [
         ("ingest", run.ingest, [W.FRAMES, W.INGEST, W.REGION]),
@@ -282,8 +283,8 @@ def run_video(source: Path, out: Path, config: RunConfig = RunConfig(),
     return {"timing": timing, "warnings": warnings}
 
 
-def _prepare(out: Path, config: RunConfig) -> None:
-    """Create the work directory; refuse one that holds a run with another config."""
+def _prepare(out: Path, config: RunConfig, source: Path) -> None:
+    """Create the work directory; refuse one that holds a run of another video or config."""
     try:
         out.mkdir(parents=True, exist_ok=True)
         probe = out / ".write-test"
@@ -293,11 +294,17 @@ def _prepare(out: Path, config: RunConfig) -> None:
         raise InputError(f"cannot write to the output folder {out}: {err.strerror}; choose "
                          f"another --out") from err
     saved = out / W.CONFIG
-    resolved = {"config": json.loads(json.dumps(asdict(config))), "c2d2_version": __version__}
+    identity = {"path": str(source.resolve()),
+                "size": source.stat().st_size if source.is_file() else None}
+    resolved = {"config": json.loads(json.dumps(asdict(config))), "source": identity,
+                "c2d2_version": __version__}
     if saved.is_file():
         previous = json.loads(saved.read_text())
+        if previous.get("source") != identity:
+            raise InputError(f"{out} holds a run of {previous.get('source', {}).get('path')}, "
+                             f"not of {source}; use another --out")
         if previous.get("config") != resolved["config"]:
             raise InputError(f"{out} holds a run made with another configuration; use another "
                              f"--out or delete it to start again")
-    else:
+    elif source.exists():
         W.write_json(saved, resolved)

@@ -139,6 +139,9 @@ class CoverageConfig:
     input_depth: str = "predicted"
     """Per-frame input: 'predicted' (the depth network's output on the RGB, as at inference)
     or 'true' (the simulator's depth, an ablation)."""
+    median_normalise: bool = True
+    """Divide each depth map by its median (the rule for depth of unknown scale); False feeds
+    log depth as is, an ablation that only makes sense with metric (true) depth."""
     segment_frames: int = 300
     """Frames per segment (T)."""
     segment_stride: int = 30

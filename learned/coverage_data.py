@@ -69,7 +69,8 @@ def video_inputs(seq: FrameSequence, depth_model: DepthModel, config: CoverageCo
                  progress: bool = False) -> np.ndarray:
     """Normalised per-frame inputs (N, 1, h, w) of any frame sequence, from predicted depth."""
     depth = predicted_depth(depth_model, seq, progress=progress)
-    return normalise_depth(depth, seq.region, (config.height, config.width), name=seq.name)
+    return normalise_depth(depth, seq.region, (config.height, config.width), name=seq.name,
+                           by_median=config.median_normalise)
 
 
 def procedure_samples(path: Path, config: CoverageConfig, depth_model: DepthModel | None,
@@ -80,7 +81,7 @@ def procedure_samples(path: Path, config: CoverageConfig, depth_model: DepthMode
     """
     proc = Procedure.open(path)
     cache = proc.path / "cache"
-    size = f"{config.height}x{config.width}"
+    size = f"{config.height}x{config.width}" + ("" if config.median_normalise else "-log")
     if config.input_depth == "true":
         name = f"input-true-{size}.npy"
     else:
@@ -111,9 +112,12 @@ def _inputs(proc: Procedure, config: CoverageConfig, depth_model: DepthModel | N
             progress: bool) -> np.ndarray:
     if config.input_depth == "true":
         depth = np.stack([proc.depth(i) for i in range(proc.num_frames)])
+        # No surface (looking out of the open rectum end): as far as the frame's farthest wall.
+        depth = np.where(depth > 0, depth, depth.max(axis=(1, 2), keepdims=True))
         region = np.ones(depth.shape[1:], dtype=bool)
         return normalise_depth(depth, region, (config.height, config.width),
-                               name=str(proc.path)).astype(np.float16)
+                               name=str(proc.path),
+                               by_median=config.median_normalise).astype(np.float16)
     if depth_model is None:
         raise InputError("predicted-depth inputs need a depth model")
     size = (depth_model.config.height, depth_model.config.width)

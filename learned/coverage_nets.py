@@ -28,8 +28,11 @@ from learned.nets import ResNetEncoder
 
 
 def normalise_depth(depth: np.ndarray, region: np.ndarray, size: tuple[int, int],
-                    name: str = "depth") -> np.ndarray:
-    """(N, H, W) depth and (H, W) bool region -> (N, 1, h, w) float32 per-frame net input."""
+                    name: str = "depth", by_median: bool = True) -> np.ndarray:
+    """(N, H, W) depth and (H, W) bool region -> (N, 1, h, w) float32 per-frame net input.
+
+    by_median=False keeps the depth's own scale: log(depth) (an ablation for metric depth).
+    """
     depth = np.asarray(depth, dtype=np.float32)
     if depth.ndim != 3 or depth.shape[1:] != region.shape:
         raise InputError(f"{name}: expected (N, H, W) depth maps of the region's size "
@@ -41,7 +44,8 @@ def normalise_depth(depth: np.ndarray, region: np.ndarray, size: tuple[int, int]
         raise InputError(f"{name}: NaN, infinite or non-positive depth inside the image region "
                          f"in frames {frames}; recompute the depth")
     median = np.median(inside, axis=1)
-    logs = np.log(np.where(region, depth, median[:, None, None]) / median[:, None, None])
+    scale = median if by_median else np.ones_like(median)
+    logs = np.log(np.where(region, depth, median[:, None, None]) / scale[:, None, None])
     height, width = size
     small = [cv2.resize(d, (width, height), interpolation=cv2.INTER_AREA) for d in logs]
     return np.stack(small)[:, None].astype(np.float32)
