@@ -9,7 +9,7 @@ back-projected depth) in one unit, and returns a `FittedLumen` parametrised by a
    where the camera ends towards where it started: towards the cecum, where the look-ahead Δ1
    of the coverage definition points.
    The path is continued straight on beyond its deep end, to cover the look-ahead band, and a
-   little beyond its other end.
+   little beyond its other end; so is the fitted centreline where the surface ends.
 2. Cross-sections: at each station, the surface points in a slab one spacing thick normal to
    the path are projected into its plane and fitted with a circle (algebraic fit, outliers
    beyond 3 MADs trimmed); a section whose points cover less than half of the circle is
@@ -56,10 +56,17 @@ class LumenFitConfig:
     """The video withdraws the endoscope (ℓ grows back in time, towards where the camera
     started); False for an insertion (ℓ grows forward in time)."""
     extend: float = 3.5
-    """The path is continued this far (× r0) beyond its end in the direction the cameras look,
-    where the look-ahead band of the coverage definition lies."""
+    """The path, and the fitted centreline where the surface ends, are continued straight on
+    this far (× r0) beyond their deep end, where the look-ahead band of the coverage
+    definition lies."""
     extend_back: float = 1.0
-    """... and this far (× r0) beyond its other end, which smoothing would otherwise shorten."""
+    """... and this far (× r0) beyond their other end, which smoothing would otherwise
+    shorten."""
+
+    def __post_init__(self) -> None:
+        if self.iterations < 1 or self.spacing <= 0 or self.reach <= 0:
+            raise InputError(f"LumenFitConfig needs iterations >= 1 and positive spacing and "
+                             f"reach: {self}")
 
 
 @dataclass
@@ -73,9 +80,6 @@ class FittedLumen:
     def arclength(self) -> np.ndarray:
         steps = np.linalg.norm(np.diff(self.points, axis=0), axis=1)
         return np.concatenate([[0.0], np.cumsum(steps)])
-
-    def scaled(self, factor: float) -> FittedLumen:
-        return FittedLumen(self.points * factor, self.radius * factor)
 
     def save(self, path: Path) -> None:
         """lumen.json: points, radius, arclength (written atomically)."""
@@ -114,14 +118,18 @@ def fit_lumen(poses: np.ndarray, surface: np.ndarray, fps: float = 30.0,
     if len(path) < 4:
         raise InputError(f"{name}: the camera moves {_length(centres):.3g} units, less than a "
                          f"few cross-sections ({4 * spacing:.3g}); too short for a lumen fit")
-    path = _extended(path, round(config.extend / config.spacing),
-                     round(config.extend_back / config.spacing), spacing)
+    ahead = round(config.extend / config.spacing)
+    behind = round(config.extend_back / config.spacing)
+    path = _extended(path, ahead, behind, spacing)
     tree = cKDTree(surface)
     sigma = config.smoothing_stations
-    for _ in range(max(1, config.iterations)):
+    for _ in range(config.iterations):
         centre, radius = _cross_sections(path, surface, tree, spacing, config.reach * r0, config)
-        lumen = _resample(FittedLumen(gaussian_filter1d(centre, sigma, axis=0, mode="nearest"),
-                                      gaussian_filter1d(radius, sigma, mode="nearest")), spacing)
+        fitted = _resample(FittedLumen(gaussian_filter1d(centre, sigma, axis=0, mode="nearest"),
+                                       gaussian_filter1d(radius, sigma, mode="nearest")), spacing)
+        # Where the surface ends, the centreline goes on straight with the end radius.
+        lumen = FittedLumen(_extended(fitted.points, ahead, behind, spacing),
+                            np.pad(fitted.radius, (behind, ahead), mode="edge"))
         path = lumen.points
     return lumen
 
@@ -166,7 +174,8 @@ def _tangents(path: np.ndarray) -> np.ndarray:
 
 def _cross_sections(path: np.ndarray, surface: np.ndarray, tree: cKDTree, spacing: float,
                     reach: float, config: LumenFitConfig) -> tuple[np.ndarray, np.ndarray]:
-    """Circle centre (M, 3) and radius (M,) at each station, gaps filled by interpolation."""
+    """Circle centre and radius at the stations from the first to the last fitted one, gaps
+    between them filled by interpolation."""
     tangents = _tangents(path)
     centre = np.full_like(path, np.nan)
     radius = np.full(len(path), np.nan)
@@ -188,14 +197,13 @@ def _cross_sections(path: np.ndarray, surface: np.ndarray, tree: cKDTree, spacin
         sectors = np.unique(((angles + np.pi) / (np.pi / 6)).astype(int) % 12)
         if len(sectors) >= config.min_arc_bins:
             centre[i], radius[i] = p + cx * u + cy * v, r
-    good = np.isfinite(radius)
-    if good.sum() < 2:
+    good = np.flatnonzero(np.isfinite(radius))
+    if len(good) < 2:
         raise InputError("the reconstruction gives no usable cross-section of the lumen (too "
                          "few surface points around the camera path); check depth and poses")
-    index = np.arange(len(path))
-    for k in range(3):
-        centre[:, k] = np.interp(index, index[good], centre[good, k])
-    return centre, np.interp(index, index[good], radius[good])
+    index = np.arange(good[0], good[-1] + 1)  # from the first to the last fitted station
+    centre = np.stack([np.interp(index, good, centre[good, k]) for k in range(3)], axis=1)
+    return centre, np.interp(index, good, radius[good])
 
 
 def _circle(xy: np.ndarray, rounds: int = 3) -> tuple[np.ndarray, float] | None:
