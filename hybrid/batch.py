@@ -12,7 +12,7 @@ import io
 import json
 import os
 import traceback
-from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 
 import numpy as np
@@ -59,8 +59,13 @@ def run_batch(folder: Path, out: Path, config: RunConfig | None = None, workers:
         with ProcessPoolExecutor(workers) as pool:
             futures = {pool.submit(_run_one, v, out / v.name, config, None, threads): v
                        for v in videos}
-            for future in futures:
-                rows[futures[future].name] = future.result()
+            for future in as_completed(futures):
+                video = futures[future]
+                try:
+                    rows[video.name] = future.result()
+                except Exception as err:  # a worker that died (e.g. out of memory)
+                    rows[video.name] = {"video": str(video), "status": "failed",
+                                        "error": f"worker died: {type(err).__name__}: {err}"}
                 _write_summary(out, videos, rows)
                 bar.update(1)
     bar.close()
@@ -74,7 +79,7 @@ def _run_one(video: Path, work: Path, config: RunConfig, models: Models | None,
         import torch
 
         torch.set_num_threads(threads)
-    error_file = work / "error.txt"
+    error_file = work / W.ERROR
     try:
         done_before = (work / W.REPORT).is_file()
         result = run_video(video, work, config, models, progress=False)

@@ -114,7 +114,7 @@ def demo(
     truth = procedure.coverage
     key = pair_key(truth.default_pair)
     typer.echo(f"segment  time (s)      truth  learned  geometric   (Δ = {key} cm)")
-    for row, true in zip(table["segments"], truth.segments, strict=False):
+    for row, true in zip(table["segments"], truth.segments, strict=True):
         cells = [true.coverage[key], row["learned"], row["geometric"]]
         typer.echo(f"{row['index']:7d}  {row['start_s']:5.1f}-{row['end_s']:<6.1f} "
                    + "  ".join("      n/a" if c is None else f"{c:7.3f}" for c in cells))
@@ -141,6 +141,7 @@ def run(
     insertion: Annotated[bool, typer.Option(help="The video is an insertion, not a withdrawal "
                                             "(the look-ahead band lies where the camera is "
                                             "going).")] = False,
+    segment_seconds: Annotated[float, typer.Option(help="Segment length.")] = 10.0,
 ):
     """The whole pipeline on one video: coverage.json/.csv, mesh.ply, maps/, report.html."""
     from dataclasses import replace
@@ -148,7 +149,8 @@ def run(
     from hybrid.pipeline import RunConfig, run_video
 
     config = RunConfig(depth_checkpoint=_opt(depth_checkpoint),
-                       coverage_checkpoint=_opt(coverage_checkpoint), fps=fps)
+                       coverage_checkpoint=_opt(coverage_checkpoint), fps=fps,
+                       segment_seconds=segment_seconds)
     if insertion:
         rec = config.reconstruction
         config = replace(config, reconstruction=replace(
@@ -397,25 +399,36 @@ def adapt(
                                                "one).")] = None,
     depth_checkpoint: Annotated[Path | None, typer.Option(help="Depth model (default: the "
                                                           "shipped one).")] = None,
+    segment_seconds: Annotated[float, typer.Option(help="Segment length, as `c2d2 run` will "
+                                                   "use it.")] = 10.0,
 ):
-    """Fit CORAL on unlabelled target videos and save the adapted coverage model."""
+    """Fit CORAL on unlabelled target videos and save the adapted coverage model.
+
+    Each video is ingested and its depth computed as `c2d2 run` does (streamed), its 10-s
+    segments resampled to the per-segment network's window, and windows taken every
+    `segment_stride` frames of that resampled time.
+    """
+    import tempfile
+
+    from hybrid.pipeline import Models, RunConfig, video_features
     from learned.coral import adapt as fit
-    from learned.coverage_data import video_inputs
-    from learned.coverage_nets import load_coverage_model
-    from learned.frames import open_sequence
-    from learned.model import load_depth_model
+    from learned.coverage_nets import resample_features
     from learned.train import expand_inputs
 
-    net = load_coverage_model(model or _shipped_coverage())
-    depth_model = load_depth_model(depth_checkpoint or _shipped_checkpoint())
-    size = (depth_model.config.height, depth_model.config.width)
-    features = [net.frame_outputs(video_inputs(open_sequence(p, size), depth_model, net.config,
-                                               progress=True))[1]
-                for p in expand_inputs(target)]
-    windows = fit(net, features, net.config.segment_stride)
     if not out.parent.is_dir():
         raise InputError(f"folder for --out does not exist: {out.parent}")
-    net.save(out)
+    config = RunConfig(depth_checkpoint=_opt(depth_checkpoint),
+                       coverage_checkpoint=str(model or _shipped_coverage()),
+                       segment_seconds=segment_seconds)
+    models = Models.load(config)
+    T = models.coverage.config.segment_frames
+    features = []
+    with tempfile.TemporaryDirectory() as work:
+        for k, path in enumerate(expand_inputs(target)):
+            per_frame, frames = video_features(path, Path(work) / str(k), config, models)
+            features.append(resample_features(per_frame, frames, T))
+    windows = fit(models.coverage, features, models.coverage.config.segment_stride)
+    models.coverage.save(out)
     typer.echo(f"CORAL fitted on {windows} target windows: {out}")
 
 

@@ -19,14 +19,14 @@ import numpy as np
 from hybrid import workdir as W
 from hybrid.coverage import DEFAULT_PAIR_CM, pair_key
 from hybrid.ingest import Ingested
+from learned.coverage_eval import CLASS_EDGES, three_class
 
 CLASS_NAMES = ("mostly not covered", "partial", "mostly covered")
-CLASS_EDGES = (0.4, 0.8)
-"""3-class bins: [0, 0.4), [0.4, 0.8), [0.8, 1]."""
+"""Names of the 3-class bins (learned.coverage_eval.CLASS_EDGES)."""
 
 
 def coverage_class(value: float | None) -> int | None:
-    return None if value is None else int(np.digitize(value, CLASS_EDGES))
+    return None if value is None else int(three_class(value))
 
 
 @dataclass
@@ -95,8 +95,8 @@ def cross_check(out: Path, ingested: Ingested, config) -> CrossCheck:
         key = pair_key(DEFAULT_PAIR_CM)
         geometric = {s["index"]: s["coverage"][key]
                      for s in json.loads((out / W.GEOMETRIC).read_text())["segments"]}
-    elif (out / "geometric_error.txt").is_file():
-        error = (out / "geometric_error.txt").read_text().strip()
+    elif (out / W.GEOMETRIC_ERROR).is_file():
+        error = (out / W.GEOMETRIC_ERROR).read_text().strip()
     usable = ingested.usable
     rows = []
     for segment in learned:

@@ -9,6 +9,7 @@ out/eval_scatter.png.
 from __future__ import annotations
 
 import json
+import logging
 from collections.abc import Callable
 from pathlib import Path
 
@@ -18,6 +19,9 @@ from hybrid import workdir as W
 from hybrid.crosscheck import coverage_class
 from hybrid.dataset import Procedure
 from hybrid.pipeline import Models, RunConfig, run_video
+from hybrid.types import InputError
+
+log = logging.getLogger(__name__)
 
 
 def _stats(pred: np.ndarray, truth: np.ndarray) -> dict:
@@ -32,15 +36,21 @@ def _stats(pred: np.ndarray, truth: np.ndarray) -> dict:
 
 
 def evaluate_pipeline(procedures: list[Procedure], out: Path, config: RunConfig,
-                      models: Models, echo: Callable[[str], None] = print) -> dict:
+                      models: Models, echo: Callable[[str], None] | None = None) -> dict:
     out = Path(out)
+    echo = echo or log.info
     rows = []
     for proc in procedures:
         work = out / f"{proc.path.parent.name}-{proc.path.name}"
         run_video(proc.path, work, config, models, progress=False, echo=lambda _: None)
         table = json.loads((work / W.COVERAGE_JSON).read_text())["segments"]
         truth = proc.coverage.segment_labels()
-        for row, true in zip(table, truth, strict=False):
+        spans = [(s.start, s.stop) for s in proc.coverage.segments]
+        if [(r["start_frame"], r["stop_frame"]) for r in table] != spans:
+            raise InputError(f"{proc.path}: the pipeline's segments differ from the ground "
+                             f"truth's {spans[:3]}...; evaluate at the simulator's frame rate "
+                             f"and segment length")
+        for row, true in zip(table, truth, strict=True):
             rows.append({"procedure": str(proc.path), "segment": row["index"],
                          "truth": float(true), "learned": row["learned"],
                          "geometric": row["geometric"]})

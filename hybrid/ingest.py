@@ -27,6 +27,7 @@ import numpy as np
 from tqdm import tqdm
 
 from hybrid.types import InputError
+from hybrid.workdir import write_json
 from learned.frames import IMAGE_SUFFIXES, VIDEO_SUFFIXES, Crop, detect_region
 
 DARK_GREY = 30
@@ -57,7 +58,7 @@ class Ingested:
         return ~(np.array(self.dark) | np.array(self.overexposed) | np.array(self.blurred))
 
     def save(self, path: Path) -> None:
-        Path(path).write_text(json.dumps(asdict(self)) + "\n")
+        write_json(path, asdict(self))
 
     @classmethod
     def load(cls, path: Path) -> Ingested:
@@ -131,6 +132,9 @@ def ingest(path: Path, size: tuple[int, int], frames_out: Path, region: np.ndarr
         blurred.append(bool(cv2.Laplacian(grey, cv2.CV_64F)[small_region].var() < BLUR_VARIANCE))
     stack.flush()
     del stack
+    if len(dark) != count:
+        raise InputError(f"{path}: the second reading gave {len(dark)} frames, the first {count}; "
+                         f"the file changed or decodes unreliably: copy or re-encode it")
     tmp.replace(frames_out)
     warning = None
     if source.count_hint > count:

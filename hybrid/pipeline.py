@@ -25,9 +25,10 @@ import cv2
 import numpy as np
 import torch
 
-from fusion.posegraph import PoseGraphConfig, chain, smooth_trajectory
+from fusion.posegraph import PoseGraphConfig, smooth_trajectory
 from hybrid import __version__
 from hybrid import workdir as W
+from hybrid.coverage import DELTA_PAIRS_CM
 from hybrid.crosscheck import cross_check
 from hybrid.geometric_coverage import GeometricConfig, geometric_coverage
 from hybrid.ingest import Ingested, ingest
@@ -35,7 +36,13 @@ from hybrid.lumen_fit import FittedLumen
 from hybrid.reconstruction import ReconstructionConfig, ScaledDepth, reconstruct
 from hybrid.types import Camera, InputError
 from learned.coverage_data import predicted_depth
-from learned.coverage_nets import CoverageModel, load_coverage_model, normalise_depth
+from learned.coverage_eval import CLASS_EDGES
+from learned.coverage_nets import (
+    CoverageModel,
+    load_coverage_model,
+    normalise_depth,
+    resample_features,
+)
 from learned.frames import Crop, FrameSequence
 from learned.infer import aggregate_intrinsics, relative_poses
 from learned.model import DepthModel, load_depth_model, to_tensor
@@ -53,11 +60,17 @@ class RunConfig:
     """Coverage networks (None: the shipped fast ones)."""
     fps: float | None = None
     """Override the video's frame rate (image folders default to 30)."""
+
+    def __post_init__(self) -> None:
+        if self.fps is not None and not self.fps > 0:
+            raise InputError(f"the frame rate must be positive, got {self.fps}")
+        if not self.segment_seconds > 0:
+            raise InputError(f"segments must last a positive time, got {self.segment_seconds}")
     segment_seconds: float = 10.0
     """Segment length."""
     min_usable_fraction: float = 0.5
     """A segment is assessable when at least this fraction of its frames is usable."""
-    deficient_below: float = 0.4
+    deficient_below: float = CLASS_EDGES[0]
     """A segment is deficient when its coverage (mean of the branches that ran) is below this:
     the 'mostly not covered' class of the 3-class bins."""
     posegraph: PoseGraphConfig = field(default_factory=PoseGraphConfig)
@@ -119,8 +132,8 @@ class _Run:
     def ingest(self) -> None:
         record, region = ingest(self.source, self.size, self.path(W.FRAMES), self.region_input,
                                 self.config.fps, self.progress)
-        cv2.imwrite(str(self.path(W.REGION)), region.astype(np.uint8) * 255)
-        record.save(self.path(W.INGEST))
+        W.write_png(self.path(W.REGION), region.astype(np.uint8) * 255)
+        record.save(self.path(W.INGEST))  # last: its presence marks the stage complete
 
     def check_length(self) -> None:
         record = self.ingested
@@ -151,9 +164,9 @@ class _Run:
         with np.load(self.path(W.RELATIVE)) as data:
             relative = {int(k[3:]): data[k] for k in data.files}
         result = smooth_trajectory(relative, self.config.posegraph, name=str(self.source))
-        np.save(self.path(W.POSES_RAW), chain(relative[1]))
-        np.save(self.path(W.POSES + ".partial.npy"), result.poses)
-        self.path(W.POSES + ".partial.npy").replace(self.path(W.POSES))
+        for name, poses in ((W.POSES_RAW, result.chained), (W.POSES, result.poses)):
+            np.save(self.path(name + ".partial.npy"), poses)
+            self.path(name + ".partial.npy").replace(self.path(name))
 
     def reconstruction(self) -> None:
         frames = self.frames()
@@ -174,7 +187,8 @@ class _Run:
         config = GeometricConfig(**{**asdict(self.config.geometric),
                                     "segment_frames": self.segment_frames})
         result = geometric_coverage(FittedLumen.load(self.path(W.LUMEN)), poses,
-                                    ScaledDepth(self.depth(), scale), self.network_K(),
+                                    ScaledDepth(self.depth(), scale, self.region),
+                                    self.network_K(),
                                     self.region, config, progress=self.progress,
                                     name=self.source.name)
         maps = self.path(W.MAPS)
@@ -184,29 +198,29 @@ class _Run:
                         f"(green) and missed (red)")
         W.write_json(self.path(W.GEOMETRIC), {"segments": [vars(s) for s in result.segments]})
 
+    def frame_outputs(self) -> tuple[np.ndarray, np.ndarray]:
+        """Per-frame coverage (N, 3) and features (N, F), computed in chunks."""
+        model = self.models.coverage
+        depth, region = self.depth(), self.region
+        size = (model.config.height, model.config.width)
+        outputs = [model.frame_outputs(normalise_depth(
+            np.asarray(depth[start:start + 512], np.float32), region, size,
+            name=self.source.name, by_median=model.config.median_normalise))
+            for start in range(0, len(depth), 512)]
+        return (np.concatenate([o[0] for o in outputs]),
+                np.concatenate([o[1] for o in outputs]))
+
     def learned(self) -> None:
         model = self.models.coverage
-        depth = self.depth()
-        region = self.region
-        size = (model.config.height, model.config.width)
-        per_frame, features = [], []
-        for start in range(0, len(depth), 512):
-            inputs = normalise_depth(np.asarray(depth[start:start + 512], np.float32), region,
-                                     size, name=self.source.name,
-                                     by_median=model.config.median_normalise)
-            coverage, feats = model.frame_outputs(inputs)
-            per_frame.append(coverage)
-            features.append(feats)
-        per_frame, features = np.concatenate(per_frame), np.concatenate(features)
+        per_frame, features = self.frame_outputs()
         L, T = self.segment_frames, model.config.segment_frames
-        segments = []
-        for index, start in enumerate(range(0, len(depth) - L + 1, L)):
-            picks = start + np.minimum((np.arange(T) * L / T).astype(int), L - 1)
-            value = float(model.segment_outputs(features[picks], [0])[0])
-            segments.append({"index": index, "start": start, "stop": start + L,
-                             "coverage": value})
+        resampled = resample_features(features, L, T)
+        count = len(features) // L
+        values = model.segment_outputs(resampled, [k * T for k in range(count)])
+        segments = [{"index": k, "start": k * L, "stop": (k + 1) * L,
+                     "coverage": float(values[k])} for k in range(count)]
         W.write_json(self.path(W.LEARNED), {
-            "delta_pairs_cm": [[1.0, 3.0], [1.0, 4.0], [1.0, 6.0]],
+            "delta_pairs_cm": [list(p) for p in DELTA_PAIRS_CM],
             "per_frame": per_frame.round(5).tolist(), "segments": segments})
 
     def report(self) -> None:
@@ -230,6 +244,21 @@ def _sample_intrinsics(model: DepthModel, seq: FrameSequence, pairs: int = 64) -
     return model.pair_motion(a, b)[-1].numpy().astype(np.float64)
 
 
+def video_features(source: Path, work: Path, config: RunConfig, models: Models,
+                   progress: bool = True) -> tuple[np.ndarray, int]:
+    """The ingest and depth stages of `run_video` (resumable, in `work`), then the per-frame
+    coverage features (N, F); returns them with the frames per segment."""
+    source, work = Path(source), Path(work)
+    _prepare(work, config, source)
+    run = _Run(source, work, config, models, None, progress)
+    if not (work / W.INGEST).is_file():
+        run.ingest()
+    run.check_length()
+    if not (work / W.DEPTH).is_file():
+        run.depth_stage()
+    return run.frame_outputs()[1], run.segment_frames
+
+
 GEOMETRIC_STAGES = ("posegraph", "reconstruction", "geometric")
 
 
@@ -239,6 +268,8 @@ def run_video(source: Path, out: Path, config: RunConfig = RunConfig(),
     """Run (or resume) every stage; returns {'timing': seconds per stage, 'warnings': [...]}.
 
     Raises InputError for bad input; a geometric-branch failure is recorded, not raised.
+    Warnings (results written but incomplete): frames that did not decode, a geometric branch
+    that could not run. Trailing frames that do not fill a segment get no verdict (a note).
     """
     source, out = Path(source), Path(out)
     _prepare(out, config, source)
@@ -254,8 +285,7 @@ def run_video(source: Path, out: Path, config: RunConfig = RunConfig(),
     ]
     timing_path = out / W.TIMING
     timing = json.loads(timing_path.read_text()) if timing_path.is_file() else {}
-    warnings = []
-    geometric_error = out / "geometric_error.txt"
+    geometric_error = out / W.GEOMETRIC_ERROR
     for name, stage, outputs in stages:
         if all((out / o).exists() for o in outputs):
             echo(f"{name}: done before, skipped")
@@ -263,11 +293,11 @@ def run_video(source: Path, out: Path, config: RunConfig = RunConfig(),
             tic = time.time()
             try:
                 stage()
-            except InputError as err:
+            except Exception as err:  # the geometric branch's failure must not stop the video
                 if name not in GEOMETRIC_STAGES:
                     raise
-                geometric_error.write_text(f"{name}: {err}\n")
-                warnings.append(f"geometric branch failed at {name}: {err}")
+                kind = "" if isinstance(err, InputError) else f"{type(err).__name__}: "
+                W.write_text(geometric_error, f"{name}: {kind}{err}\n")
             finally:
                 timing[name] = round(time.time() - tic, 2)
                 W.write_json(timing_path, timing)
@@ -275,11 +305,15 @@ def run_video(source: Path, out: Path, config: RunConfig = RunConfig(),
             echo(f"{name}: {timing[name]:.1f} s ({rate:.0f} frames/s)")
         if name == "ingest":
             run.check_length()
-    decode = run.ingested.decode_warning
-    if decode:
-        warnings.append(decode)
-    if geometric_error.is_file() and not warnings:
-        warnings.append(f"geometric branch failed: {geometric_error.read_text().strip()}")
+    warnings = []
+    if run.ingested.decode_warning:
+        warnings.append(run.ingested.decode_warning)
+    if geometric_error.is_file():
+        warnings.append(f"geometric branch failed at {geometric_error.read_text().strip()}")
+    dropped = run.ingested.frames % run.segment_frames
+    if dropped:
+        echo(f"note: the last {dropped} frames ({dropped / run.ingested.fps:.1f} s) do not fill "
+             f"a {config.segment_seconds:g}-s segment and have no verdict")
     return {"timing": timing, "warnings": warnings}
 
 

@@ -16,8 +16,9 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from hybrid import workdir as W
-from hybrid.crosscheck import CLASS_EDGES, CLASS_NAMES, CrossCheck
+from hybrid.crosscheck import CLASS_NAMES, CrossCheck
 from hybrid.ingest import Ingested
+from learned.coverage_eval import CLASS_EDGES
 
 
 def _png(fig) -> str:

@@ -41,6 +41,10 @@ LEARNED = "learned.json"
 COVERAGE_JSON = "coverage.json"
 COVERAGE_CSV = "coverage.csv"
 """The cross-check: per segment, both coverages, their agreement and flags."""
+GEOMETRIC_ERROR = "geometric_error.txt"
+"""Why the geometric branch could not run on this video (the learned branch still reports)."""
+ERROR = "error.txt"
+"""Why a batch run of this video failed."""
 REPORT = "report.html"
 CONFIG = "config.json"
 """The resolved run configuration and the package version."""
@@ -59,3 +63,15 @@ def write_text(path: Path, text: str) -> Path:
 
 def write_json(path: Path, data) -> Path:
     return write_text(path, json.dumps(data, indent=1) + "\n")
+
+
+def write_png(path: Path, image) -> Path:
+    """Write an image (uint8 array) as PNG atomically."""
+    import cv2
+
+    path = Path(path)
+    tmp = path.with_name(path.name + ".partial.png")
+    if not cv2.imwrite(str(tmp), image):
+        raise OSError(f"cannot write {path}")
+    os.replace(tmp, path)
+    return path

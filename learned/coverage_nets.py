@@ -51,6 +51,16 @@ def normalise_depth(depth: np.ndarray, region: np.ndarray, size: tuple[int, int]
     return np.stack(small)[:, None].astype(np.float32)
 
 
+def resample_features(features: np.ndarray, segment_frames: int, window: int) -> np.ndarray:
+    """Per-frame features of a video whose segments last `segment_frames` frames, resampled in
+    time (nearest frame) so that a segment lasts `window` frames, the per-segment network's T.
+    Segment k of the video is then the window starting at k * window."""
+    count = len(features) * window // segment_frames
+    picks = np.minimum((np.arange(count) * segment_frames / window).astype(int),
+                       len(features) - 1)
+    return features[picks]
+
+
 class FrameNet(nn.Module):
     """Normalised depth (B, 1, h, w) -> per-frame coverage (B, 3); features() gives (B, F)."""
 

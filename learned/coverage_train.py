@@ -10,6 +10,7 @@ ships), `train_log.jsonl` (losses) and `record.json` (config, data, depth model,
 from __future__ import annotations
 
 import json
+import logging
 import time
 from pathlib import Path
 
@@ -24,6 +25,8 @@ from learned.coverage_eval import Predictions, coverage_metrics, format_table, s
 from learned.coverage_nets import CoverageModel, load_coverage_model
 from learned.model import load_depth_model
 from learned.train import expand_inputs
+
+logger = logging.getLogger(__name__)
 
 
 def fold_split(count: int, folds: int, seed: int) -> list[np.ndarray]:
@@ -190,6 +193,10 @@ def train_coverage(data: list[Path], out: Path, config: CoverageConfig,
                          f"options or use another --out")
     started = time.time()
     samples = load_samples(data, config, depth_checkpoint, progress)
+    if previous and (previous["procedures"] != [s.name for s in samples]
+                     or previous["depth_checkpoint"]["sha256_12"] != file_tag(depth_checkpoint)):
+        raise InputError(f"{out} holds a run on other procedures or another depth model; use "
+                         f"another --out")
     record = {"config": config.to_dict(), "data": [str(p) for p in data],
               "procedures": [s.name for s in samples],
               "depth_checkpoint": {"path": str(depth_checkpoint),
@@ -222,7 +229,7 @@ def train_coverage(data: list[Path], out: Path, config: CoverageConfig,
         scatter_plots(cv, out / "cv_scatter.png",
                       f"{config.folds}-fold cross-validation by procedure ({len(samples)} "
                       f"procedures)")
-        print(format_table({f"{config.folds}-fold CV": metrics}))
+        logger.info("\n%s", format_table({f"{config.folds}-fold CV": metrics}))
     final = out / "model.safetensors"
     if not final.is_file():
         tic = time.time()

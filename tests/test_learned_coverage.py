@@ -24,6 +24,7 @@ from learned.coverage_nets import (
     count_parameters,
     load_coverage_model,
     normalise_depth,
+    resample_features,
 )
 from learned.coverage_train import fold_split, train_frame_net, train_segment_net
 from learned.model import DepthModel
@@ -296,7 +297,8 @@ def test_train_eval_and_adapt_commands(tmp_path, two_procedures):
     adapted = tmp_path / "adapted.safetensors"
     result = runner.invoke(app, ["adapt", "--target", str(two_procedures), "--out", str(adapted),
                                  "--model", str(run / "model.safetensors"),
-                                 "--depth-checkpoint", str(depth)])
+                                 "--depth-checkpoint", str(depth),
+                                 "--segment-seconds", str(20 / 30)])  # 20 frames at 30 fps
     assert result.exit_code == 0, result.output
     assert "CORAL fitted on 10 target windows" in result.output  # 2 x (40 - 20) / 5 + 2
     net = load_coverage_model(adapted).segment
@@ -308,3 +310,16 @@ def test_eval_coverage_with_a_depth_checkpoint_as_model(tmp_path, two_procedures
     result = runner.invoke(app, ["eval-coverage", "--data", str(two_procedures), "--out",
                                  str(tmp_path / "e"), "--model", str(depth)])
     assert_clean_error(result, "depth.safetensors", "not a 'coverage'")
+
+
+def test_segments_of_another_frame_rate_are_resampled_to_the_window():
+    """A 6-fps video: a 10-s segment is 60 frames; the network's window is 300 (30 fps)."""
+    features = np.arange(150, dtype=np.float32)[:, None]  # frame index as the feature
+    resampled = resample_features(features, segment_frames=60, window=300)
+    assert len(resampled) == 750  # 2.5 segments
+    first, second = resampled[:300, 0], resampled[300:600, 0]
+    assert first.min() == 0 and first.max() == 59 and np.all(np.diff(first) >= 0)
+    assert second.min() == 60 and second.max() == 119
+    assert np.bincount(first.astype(int)).tolist() == [5] * 60  # each frame 5 times
+    # At the network's own rate nothing changes.
+    assert np.array_equal(resample_features(features, 300, 300), features)

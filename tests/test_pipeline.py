@@ -139,14 +139,16 @@ def assert_input_error(result, *names: str) -> str:
 
 def test_run_writes_every_file_of_the_work_directory(pipeline_run, procedure):
     out, result = pipeline_run
-    names = [value for key, value in vars(W).items() if key.isupper() and isinstance(value, str)]
+    failure_files = {W.GEOMETRIC_ERROR, W.ERROR}  # written only when something fails
+    names = [value for key, value in vars(W).items() if key.isupper() and isinstance(value, str)
+             and value not in failure_files]
     assert len(names) == 19
     missing = [name for name in names if not (out / name).exists()]
     assert not missing
+    assert not any((out / name).exists() for name in failure_files)
     assert (out / W.MAPS / "coverage_map.png").is_file()
     assert (out / W.MAPS / "coverage_map.npz").is_file()
     assert not list(out.rglob("*.partial*"))
-    assert not (out / "geometric_error.txt").exists()
     assert result["warnings"] == []
     assert set(result["timing"]) == set(STAGES)
 
@@ -302,7 +304,7 @@ def test_batch_resumes_after_a_kill_and_isolates_a_bad_file(frames, tmp_path):
         assert 0 <= float(rows[name]["mean_learned"]) <= 1
         assert 0 <= float(rows[name]["mean_geometric"]) <= 1
     assert "c_notes.mp4" in rows["c_notes.mp4"]["error"]
-    error_file = out / "c_notes.mp4" / "error.txt"
+    error_file = out / "c_notes.mp4" / W.ERROR
     assert rows["c_notes.mp4"]["error"] in error_file.read_text()
 
     finished = snapshot(out / "a_first.avi")
@@ -411,7 +413,7 @@ def hand_made_work_dir(out: Path, geometric: list[float | None] | None) -> Inges
         {"index": i, "start": 10 * i, "stop": 10 * i + 10, "coverage": v}
         for i, v in enumerate(learned)]})
     if geometric is None:
-        (out / "geometric_error.txt").write_text("reconstruction: no surface\n")
+        (out / W.GEOMETRIC_ERROR).write_text("reconstruction: no surface\n")
     else:
         W.write_json(out / W.GEOMETRIC, {"segments": [
             {"index": i, "coverage": {"1-3": 0.0, "1-4": v, "1-6": 1.0}}
