@@ -5,7 +5,7 @@ Reads the input twice, one frame at a time, so memory does not grow with the vid
 pass 1 finds the image region (pixels that are ever brighter than the border: black border,
 circular or octagonal mask; the largest bright component, holes filled, so static overlays in
 the border drop out) and counts the frames; pass 2 crops to the region's bounding box, resizes
-and writes `frames.npy` (N, H, W, 3) uint8 through a memory map. Frames keep the video's own
+and writes `frames.npy` (N, H, W, 3) uint8 block by block. Frames keep the video's own
 rate; segments are cut by time downstream.
 
 Quality flags per frame (inside the region): dark (mean grey < 30), overexposed (over 25% of
@@ -26,6 +26,7 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
+from hybrid.npyio import NpyWriter
 from hybrid.types import InputError
 from hybrid.workdir import write_json
 from learned.frames import IMAGE_SUFFIXES, VIDEO_SUFFIXES, Crop, detect_region
@@ -114,28 +115,23 @@ def ingest(path: Path, size: tuple[int, int], frames_out: Path, region: np.ndarr
         return cv2.resize(cut, (width, height), interpolation=interpolation)
 
     small_region = fit(region.astype(np.uint8), cv2.INTER_NEAREST).astype(bool)
-    frames_out = Path(frames_out)
-    tmp = frames_out.with_name(frames_out.name + ".partial.npy")
-    stack = np.lib.format.open_memmap(tmp, mode="w+", dtype=np.uint8,
-                                      shape=(count, height, width, 3))
+    stack = NpyWriter(frames_out, (count, height, width, 3), np.uint8)
     dark, bright, blurred = [], [], []
     for index, frame in enumerate(tqdm(source.open(), total=count, unit="frame",
                                        desc=f"ingest {Path(path).name}", disable=not progress)):
         if index == count:
             break
         small = fit(frame, cv2.INTER_AREA)
-        stack[index] = small
+        stack[index:index + 1] = small[None]
         grey = cv2.cvtColor(small, cv2.COLOR_RGB2GRAY)
         inside = grey[small_region]
         dark.append(bool(inside.mean() < DARK_GREY))
         bright.append(bool((inside > 245).mean() > OVEREXPOSED_FRACTION))
         blurred.append(bool(cv2.Laplacian(grey, cv2.CV_64F)[small_region].var() < BLUR_VARIANCE))
-    stack.flush()
-    del stack
     if len(dark) != count:
         raise InputError(f"{path}: the second reading gave {len(dark)} frames, the first {count}; "
                          f"the file changed or decodes unreliably: copy or re-encode it")
-    tmp.replace(frames_out)
+    stack.close()
     warning = None
     if source.count_hint > count:
         # FFmpeg skips undecodable frames and goes on, so the lost ones may be anywhere.

@@ -3,8 +3,8 @@
 ingest -> depth (learned depth, K, relative poses) -> pose graph -> reconstruction (scale,
 TSDF mesh, lumen) -> geometric coverage (+ unrolled maps) -> learned coverage -> cross-check
 and report. Each stage writes its files (hybrid.workdir) atomically and is skipped when they
-exist, so an interrupted run resumes where it stopped. Long arrays (frames, depth) go through
-memory maps, so memory does not grow with the video's length.
+exist, so an interrupted run resumes where it stopped. Long arrays (frames, depth) are written
+and read in blocks (hybrid.npyio), so memory does not grow with the video's length.
 
 Segments are cut by time (`segment_seconds`) at the video's own frame rate; the per-segment
 network, trained on 300 frames at 30 fps, reads each segment's per-frame features resampled to
@@ -33,6 +33,7 @@ from hybrid.crosscheck import cross_check
 from hybrid.geometric_coverage import GeometricConfig, geometric_coverage
 from hybrid.ingest import Ingested, ingest
 from hybrid.lumen_fit import FittedLumen
+from hybrid.npyio import NpyRows, NpyWriter
 from hybrid.reconstruction import ReconstructionConfig, ScaledDepth, reconstruct
 from hybrid.types import Camera, InputError
 from learned.coverage_data import predicted_depth
@@ -112,11 +113,11 @@ class _Run:
     def region(self) -> np.ndarray:
         return cv2.imread(str(self.path(W.REGION)), cv2.IMREAD_GRAYSCALE) > 127
 
-    def frames(self) -> np.ndarray:
-        return np.load(self.path(W.FRAMES), mmap_mode="r")
+    def frames(self) -> NpyRows:
+        return NpyRows(self.path(W.FRAMES))
 
-    def depth(self) -> np.ndarray:
-        return np.load(self.path(W.DEPTH), mmap_mode="r")
+    def depth(self) -> NpyRows:
+        return NpyRows(self.path(W.DEPTH))
 
     def sequence(self) -> FrameSequence:
         frames = self.frames()
@@ -144,13 +145,9 @@ class _Run:
 
     def depth_stage(self) -> None:
         seq = self.sequence()
-        tmp = self.path(W.DEPTH + ".partial.npy")
-        out = np.lib.format.open_memmap(tmp, mode="w+", dtype=np.float16,
-                                        shape=(seq.num_frames, *self.size))
+        depth = NpyWriter(self.path(W.DEPTH), (seq.num_frames, *self.size), np.float16)
         model = self.models.depth
-        predicted_depth(model, seq, progress=self.progress, out=out)
-        out.flush()
-        del out
+        predicted_depth(model, seq, progress=self.progress, out=depth)
         gaps = tuple(g for g in self.config.posegraph.skips if g < seq.num_frames)
         relative = relative_poses(model, seq, gaps, progress=self.progress)
         np.savez(self.path(W.RELATIVE + ".partial.npz"),
@@ -158,7 +155,7 @@ class _Run:
         self.path(W.RELATIVE + ".partial.npz").replace(self.path(W.RELATIVE))
         W.write_json(self.path(W.INTRINSICS), aggregate_intrinsics(
             _sample_intrinsics(model, seq), self.size, Crop(**self.ingested.crop), seq.fps))
-        tmp.replace(self.path(W.DEPTH))
+        depth.close()  # last: its presence marks the stage complete
 
     def posegraph(self) -> None:
         with np.load(self.path(W.RELATIVE)) as data:

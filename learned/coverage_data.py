@@ -52,8 +52,8 @@ class ProcedureSamples:
 @torch.no_grad()
 def predicted_depth(model: DepthModel, seq: FrameSequence, batch: int = 32,
                     progress: bool = False, out: np.ndarray | None = None) -> np.ndarray:
-    """(N, H, W) depth of every frame of seq at the depth network's size, written into `out`
-    (e.g. a memory map, to stream a long video) when given."""
+    """(N, H, W) depth of every frame of seq at the depth network's size, written in order
+    into `out` (e.g. a file writer, to stream a long video) when given."""
     model.eval()
     if out is None:
         out = np.empty((seq.num_frames, *seq.size), dtype=np.float32)
