@@ -36,7 +36,6 @@ from hybrid.lumen_fit import FittedLumen
 from hybrid.npyio import NpyRows, NpyWriter
 from hybrid.reconstruction import ReconstructionConfig, ScaledDepth, reconstruct
 from hybrid.types import Camera, InputError
-from learned.coverage_data import predicted_depth
 from learned.coverage_eval import CLASS_EDGES
 from learned.coverage_nets import (
     CoverageModel,
@@ -45,7 +44,7 @@ from learned.coverage_nets import (
     resample_features,
 )
 from learned.frames import Crop, FrameSequence
-from learned.infer import aggregate_intrinsics, relative_poses
+from learned.infer import aggregate_intrinsics, predicted_depth, relative_poses
 from learned.model import DepthModel, load_depth_model, to_tensor
 
 log = logging.getLogger(__name__)

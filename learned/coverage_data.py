@@ -18,8 +18,6 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import torch
-from tqdm import tqdm
 
 from hybrid.coverage import Lumen, compute_coverage, pair_key
 from hybrid.dataset import Procedure
@@ -27,7 +25,8 @@ from hybrid.types import InputError
 from learned.config import CoverageConfig
 from learned.coverage_nets import normalise_depth
 from learned.frames import FrameSequence, open_sequence
-from learned.model import DepthModel, to_tensor
+from learned.infer import predicted_depth
+from learned.model import DepthModel
 
 
 @dataclass
@@ -47,22 +46,6 @@ class ProcedureSamples:
     """(S,) first frames of the back-to-back segments of coverage.json."""
     segment_labels: np.ndarray
     """(S,) their default-pair coverage."""
-
-
-@torch.no_grad()
-def predicted_depth(model: DepthModel, seq: FrameSequence, batch: int = 32,
-                    progress: bool = False, out: np.ndarray | None = None) -> np.ndarray:
-    """(N, H, W) depth of every frame of seq at the depth network's size, written in order
-    into `out` (e.g. a file writer, to stream a long video) when given."""
-    model.eval()
-    if out is None:
-        out = np.empty((seq.num_frames, *seq.size), dtype=np.float32)
-    for start in tqdm(range(0, seq.num_frames, batch), desc=f"depth {Path(seq.name).name}",
-                      unit="batch", disable=not progress):
-        ids = range(start, min(start + batch, seq.num_frames))
-        images = to_tensor(np.stack([seq.frame(i) for i in ids]))
-        out[ids.start:ids.stop] = model.depth(images)[:, 0].numpy()
-    return out
 
 
 def video_inputs(seq: FrameSequence, depth_model: DepthModel, config: CoverageConfig,

@@ -100,6 +100,22 @@ def relative_poses(model: DepthModel, seq: FrameSequence, gaps: tuple[int, ...],
     return {g: np.concatenate(stacks) for g, stacks in relative.items()}
 
 
+@torch.no_grad()
+def predicted_depth(model: DepthModel, seq: FrameSequence, batch: int = 32,
+                    progress: bool = False, out: np.ndarray | None = None) -> np.ndarray:
+    """(N, H, W) depth of every frame of seq at the depth network's size, written in order
+    into `out` (e.g. a file writer, to stream a long video) when given."""
+    model.eval()
+    if out is None:
+        out = np.empty((seq.num_frames, *seq.size), dtype=np.float32)
+    for start in tqdm(range(0, seq.num_frames, batch), desc=f"depth {Path(seq.name).name}",
+                      unit="batch", disable=not progress):
+        ids = range(start, min(start + batch, seq.num_frames))
+        images = to_tensor(np.stack([seq.frame(i) for i in ids]))
+        out[ids.start:ids.stop] = model.depth(images)[:, 0].numpy()
+    return out
+
+
 def _pair_transforms(model: DepthModel, a: torch.Tensor, b: torch.Tensor
                      ) -> tuple[np.ndarray, torch.Tensor]:
     """(B, 4, 4) transforms a -> b, each the mean of the forward and the inverted backward
