@@ -40,6 +40,15 @@ def fold_split(count: int, folds: int, seed: int) -> list[np.ndarray]:
     return [np.sort(part) for part in np.array_split(order, folds)]
 
 
+def _optimise(loss: torch.Tensor, optimizer: torch.optim.Optimizer, schedule) -> float:
+    """One optimiser and schedule step on the loss; returns its value."""
+    optimizer.zero_grad()
+    loss.backward()
+    optimizer.step()
+    schedule.step()
+    return loss.item()
+
+
 def train_frame_net(model: CoverageModel, samples: list[ProcedureSamples], log,
                     progress: bool = False) -> None:
     """Stage 1: L2 loss on the per-frame coverage of the three Δ pairs (undefined ones masked).
@@ -69,12 +78,8 @@ def train_frame_net(model: CoverageModel, samples: list[ProcedureSamples], log,
         x = torch.where(flips[:, 1, None, None, None], x.flip(-2), x)
         y = torch.from_numpy(labels[ids])
         ok = torch.isfinite(y)
-        loss = (model.frame(x)[ok] - y[ok]).square().mean()
-        optimizer.zero_grad()
-        loss.backward()
-        optimizer.step()
-        schedule.step()
-        running.append(loss.item())
+        running.append(_optimise((model.frame(x)[ok] - y[ok]).square().mean(), optimizer,
+                                 schedule))
         bar.update(1)
         if (step + 1) % 100 == 0 or step + 1 == total:
             log({"stage": 1, "step": step + 1, "loss": float(np.mean(running))})
@@ -123,12 +128,8 @@ def train_segment_net(model: CoverageModel, samples: list[ProcedureSamples],
         x = stack(picks)
         reverse = torch.from_numpy(rng.random(len(picks)) < 0.5)
         x = torch.where(reverse[:, None, None], x.flip(1), x)
-        loss = (net(x) - targets[picks]).square().mean()
-        optimizer.zero_grad()
-        loss.backward()
-        optimizer.step()
-        schedule.step()
-        running.append(loss.item())
+        running.append(_optimise((net(x) - targets[picks]).square().mean(), optimizer,
+                                 schedule))
         bar.update(1)
         if (step + 1) % 200 == 0 or step + 1 == total:
             log({"stage": 2, "step": step + 1, "loss": float(np.mean(running))})
