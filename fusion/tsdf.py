@@ -138,17 +138,16 @@ class TsdfVolume:
         if not self.any_valid:
             raise InputError(f"{self.name}: no surface: every depth pixel is 0 (invalid); check "
                              f"the depth maps")
+        empty = (f"{self.name}: no surface reconstructed (no voxel seen by more than "
+                 f"{self.config.weight_threshold} frames within depth_max="
+                 f"{self.config.depth_max}); check the depth scale, or raise depth_max or lower "
+                 f"weight_threshold")
         try:
             mesh = self.grid.extract_triangle_mesh(self.config.weight_threshold)
-        except RuntimeError:  # Open3D raises on a volume with no voxel above the threshold
-            mesh = None
-        if mesh is None or mesh.triangle.indices.shape[0] == 0:
-            raise InputError(
-                f"{self.name}: no surface reconstructed (no voxel seen by more than "
-                f"{self.config.weight_threshold} frames within depth_max="
-                f"{self.config.depth_max}); check the depth scale, or raise depth_max or lower "
-                f"weight_threshold"
-            )
+        except RuntimeError as err:  # Open3D raises on a volume with no voxel above threshold
+            raise InputError(f"{empty} (Open3D: {err})") from err
+        if mesh.triangle.indices.shape[0] == 0:
+            raise InputError(empty)
         colors = None
         if "colors" in mesh.vertex:
             colors = np.round(mesh.vertex.colors.numpy().clip(0, 1) * 255).astype(np.uint8)
