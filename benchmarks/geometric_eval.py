@@ -7,6 +7,8 @@ Modes (each: pose graph where learned, TSDF, lumen fit, geometric coverage):
   oracle-rule   true depth, K and poses, scale from the typical-radius rule
   learned       the shipped depth model's depth, K and relative poses (gaps 1, 2, 4, 8),
                 smoothed by the pose graph, scale from the typical-radius rule
+  learned-local the same inputs, each segment reconstructed on its own window (the segment
+                and 5 s either side: hybrid.segment_geometry), as `c2d2 run` does
 Prints MAE, bias and 3-class accuracy per mode, the lumen fit errors, and the frames/s of the
 pose graph + TSDF + coverage; writes a JSON and a scatter plot.
 
@@ -26,8 +28,9 @@ import torch
 from fusion.posegraph import PoseGraphConfig, smooth_trajectory
 from hybrid.coverage import Lumen
 from hybrid.dataset import Procedure
-from hybrid.geometric_coverage import geometric_coverage
+from hybrid.geometric_coverage import GeometricConfig, geometric_coverage
 from hybrid.reconstruction import ReconstructionConfig, ScaledDepth, reconstruct
+from hybrid.segment_geometry import local_segment_coverage
 from learned.coverage_eval import three_class
 from learned.frames import open_sequence
 from learned.infer import infer_sequence, relative_poses
@@ -35,7 +38,7 @@ from learned.metrics import umeyama_sim3
 from learned.model import load_depth_model
 from learned.train import expand_inputs
 
-MODES = ("oracle", "oracle-s0.7", "oracle-s1.3", "oracle-rule", "learned")
+MODES = ("oracle", "oracle-s0.7", "oracle-s1.3", "oracle-rule", "learned", "learned-local")
 
 
 def lumen_errors(fitted_points: np.ndarray, fitted_radius: np.ndarray, proc: Procedure,
@@ -58,24 +61,39 @@ def lumen_errors(fitted_points: np.ndarray, fitted_radius: np.ndarray, proc: Pro
             "radius_error_cm": float(np.mean(fitted_radius[keep] - np.array(r_true)))}
 
 
-def run_procedure(proc: Procedure, model, graph: PoseGraphConfig, config: ReconstructionConfig
-                  ) -> dict:
+def run_procedure(proc: Procedure, model, graph: PoseGraphConfig, config: ReconstructionConfig,
+                  modes: tuple[str, ...] = MODES) -> dict:
     truth = proc.coverage.segment_labels()
     depth_true = [proc.depth(i) for i in range(proc.num_frames)]
     rgb = [proc.rgb(i) for i in range(proc.num_frames)]
     out = {"truth": truth.tolist()}
-    for mode in MODES:
+    learned: dict = {}
+    for mode in modes:
         tic = time.time()
-        if mode == "learned":
+        if mode.startswith("learned") and not learned:
             seq = open_sequence(proc.path, (model.config.height, model.config.width))
             inferred = infer_sequence(model, seq)
-            depth, K = list(inferred.depth), np.median(inferred.K_pairs, axis=0)
             relative = {1: inferred.relative,
                         **relative_poses(model, seq, tuple(g for g in graph.skips if g > 1))}
-            network_s = time.time() - tic
+            learned.update(depth=list(inferred.depth), K=np.median(inferred.K_pairs, axis=0),
+                           network_s=time.time() - tic)
             tic = time.time()
-            poses = smooth_trajectory(relative, graph, name=str(proc.path)).poses
-            scale = None
+            learned["poses"] = smooth_trajectory(relative, graph, name=str(proc.path)).poses
+        if mode == "learned-local":
+            local = local_segment_coverage(learned["depth"], learned["K"], learned["poses"],
+                                           300, 150, None, config, GeometricConfig(),
+                                           proc.camera.fps, proc.path.name)
+            pred = [np.nan if s.segment.coverage["1-4"] is None else s.segment.coverage["1-4"]
+                    for s in local]
+            out[mode] = {"pred": pred, "seconds": time.time() - tic, "network_seconds": 0.0,
+                         "frames": proc.num_frames, "centreline_cm": np.nan,
+                         "radius_error_cm": np.nan}
+            print(f"{proc.path}: {mode:12s} truth {np.round(truth, 2).tolist()}  pred "
+                  f"{np.round(pred, 2).tolist()}", flush=True)
+            continue
+        if mode == "learned":
+            depth, K, poses = learned["depth"], learned["K"], learned["poses"]
+            network_s, scale = learned["network_s"], None
         else:
             depth, K, poses, network_s = depth_true, proc.camera.K, proc.poses, 0.0
             scale = {"oracle": 1.0, "oracle-s0.7": 0.7, "oracle-s1.3": 1.3,
@@ -103,7 +121,7 @@ def run_procedure(proc: Procedure, model, graph: PoseGraphConfig, config: Recons
 
 def summary(results: dict) -> dict:
     table = {}
-    for mode in MODES:
+    for mode in next(iter(results.values())).keys() - {"truth"}:
         truth = np.concatenate([r["truth"] for r in results.values()])
         pred = np.concatenate([r[mode]["pred"] for r in results.values()])
         ok = np.isfinite(truth) & np.isfinite(pred)
@@ -128,7 +146,7 @@ def scatter(results: dict, path: Path) -> None:
     import matplotlib.pyplot as plt
 
     fig, axes = plt.subplots(1, 2, figsize=(9, 4.4))
-    for ax, mode in zip(axes, ("oracle", "learned"), strict=True):
+    for ax, mode in zip(axes, ("oracle", "learned-local"), strict=True):
         truth = np.concatenate([r["truth"] for r in results.values()])
         pred = np.concatenate([r[mode]["pred"] for r in results.values()])
         ax.scatter(truth, pred, s=14, alpha=0.7)
@@ -148,6 +166,7 @@ def main() -> None:
     parser.add_argument("--data", nargs="+", type=Path, default=[Path("data/test")])
     parser.add_argument("--out", type=Path, default=Path("docs/geometric"))
     parser.add_argument("--checkpoint", type=Path, default=None)
+    parser.add_argument("--modes", nargs="+", default=list(MODES), choices=MODES)
     args = parser.parse_args()
     torch.set_num_threads(1)
     from learned.checkpoints import SHIPPED_DEPTH
@@ -155,7 +174,7 @@ def main() -> None:
     model = load_depth_model(args.checkpoint or SHIPPED_DEPTH)
     graph, config = PoseGraphConfig(), ReconstructionConfig()
     results = {f"{p.parent.name}/{p.name}": run_procedure(Procedure.open(p), model, graph,
-                                                           config)
+                                                           config, tuple(args.modes))
                for p in expand_inputs(args.data)}
     table = summary(results)
     args.out.mkdir(parents=True, exist_ok=True)

@@ -30,11 +30,11 @@ from hybrid import __version__
 from hybrid import workdir as W
 from hybrid.coverage import DELTA_PAIRS_CM
 from hybrid.crosscheck import cross_check
-from hybrid.geometric_coverage import GeometricConfig, geometric_coverage
+from hybrid.geometric_coverage import GeometricConfig
 from hybrid.ingest import Ingested, ingest
-from hybrid.lumen_fit import FittedLumen
 from hybrid.npyio import NpyRows, NpyWriter
-from hybrid.reconstruction import ReconstructionConfig, ScaledDepth, reconstruct
+from hybrid.reconstruction import ReconstructionConfig, reconstruct
+from hybrid.segment_geometry import local_segment_coverage, save_maps
 from hybrid.types import Camera, InputError
 from learned.coverage_eval import CLASS_EDGES
 from learned.coverage_nets import (
@@ -177,22 +177,17 @@ class _Run:
                                                        .typical_radius_cm})
 
     def geometric(self) -> None:
-        scale = json.loads(self.path(W.RECONSTRUCTION).read_text())["scale_cm_per_unit"]
-        poses = np.load(self.path(W.POSES)).copy()
-        poses[:, :3, 3] *= scale
-        config = GeometricConfig(**{**asdict(self.config.geometric),
-                                    "segment_frames": self.segment_frames})
-        result = geometric_coverage(FittedLumen.load(self.path(W.LUMEN)), poses,
-                                    ScaledDepth(self.depth(), scale, self.region),
-                                    self.network_K(),
-                                    self.region, config, progress=self.progress,
-                                    name=self.source.name)
-        maps = self.path(W.MAPS)
-        maps.mkdir(exist_ok=True)
-        result.save_map(maps / "coverage_map.npz")
-        result.plot_map(maps / "coverage_map.png", title=f"{self.source.name}: wall seen "
-                        f"(green) and missed (red)")
-        W.write_json(self.path(W.GEOMETRIC), {"segments": [vars(s) for s in result.segments]})
+        segments = local_segment_coverage(
+            self.depth(), self.network_K(), np.load(self.path(W.POSES)), self.segment_frames,
+            self.segment_frames // 2, self.region, self.config.reconstruction,
+            self.config.geometric, self.ingested.fps, self.source.name)
+        if all(s.result is None for s in segments):
+            raise InputError(f"no segment could be reconstructed: {segments[0].error}")
+        save_maps(segments, self.path(W.MAPS), f"{self.source.name}: wall seen (green) and "
+                  f"missed (red) in each segment's V")
+        W.write_json(self.path(W.GEOMETRIC), {
+            "segments": [vars(s.segment) for s in segments],
+            "errors": {str(s.segment.index): s.error for s in segments if s.error}})
 
     def frame_outputs(self) -> tuple[np.ndarray, np.ndarray]:
         """Per-frame coverage (N, 3) and features (N, F), computed in chunks."""
