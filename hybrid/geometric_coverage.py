@@ -20,7 +20,6 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 from tqdm import tqdm
@@ -90,7 +89,7 @@ def tube_cells(lumen: FittedLumen, cell_length: float, cells_around: int) -> Tub
 
 @dataclass
 class GeometricCoverage:
-    """Per-segment coverage and the unrolled map of the whole video."""
+    """Per-segment coverage and the unrolled map of the cells (seen, expected)."""
 
     segments: list[SegmentCoverage]
     cells: TubeCells
@@ -103,44 +102,6 @@ class GeometricCoverage:
         key = pair_key(pair)
         return np.array([np.nan if s.coverage[key] is None else s.coverage[key]
                          for s in self.segments])
-
-    def save_map(self, path: Path) -> Path:
-        """The unrolled map as .npz: ell, theta (deg), first_seen, expected."""
-        path = Path(path)
-        np.savez_compressed(path, ell=self.cells.ell, theta_deg=np.degrees(self.cells.theta),
-                            first_seen=self.first_seen, expected=self.expected)
-        return path
-
-    def plot_map(self, path: Path, title: str = "") -> Path:
-        """PNG of the unrolled wall: seen, missed (expected but never seen), outside V."""
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-        from matplotlib.colors import ListedColormap
-
-        state = np.where(~self.expected, 0, np.where(self.first_seen >= 0, 1, 2))
-        ell = self.cells.ell
-        fig, ax = plt.subplots(figsize=(5, max(3.0, 0.12 * (ell[-1] - ell[0]) + 1.5)))
-        ax.imshow(state, aspect="auto", origin="lower", interpolation="nearest",
-                  cmap=ListedColormap(["0.9", "#4c9a2a", "#d62728"]), vmin=0, vmax=2,
-                  extent=(0, 360, ell[0], ell[-1]))
-        key = pair_key(DEFAULT_PAIR_CM)
-        for s in self.segments:
-            lo, hi = s.ell_min + DEFAULT_PAIR_CM[0], s.ell_max + DEFAULT_PAIR_CM[1]
-            value = s.coverage[key]
-            ax.annotate("", xy=(365, lo), xytext=(365, hi), annotation_clip=False,
-                        arrowprops={"arrowstyle": "|-|", "lw": 0.8})
-            ax.text(370, 0.5 * (lo + hi), f"{s.index}: "
-                    f"{'n/a' if value is None else f'{value:.2f}'}", va="center", fontsize=7)
-        ax.set(xlabel="angle around the lumen (deg)", ylabel="ℓ along the lumen (cm)",
-               xticks=[0, 90, 180, 270, 360],
-               title=title or "wall seen (green) and missed (red)")
-        fig.tight_layout()
-        path = Path(path)
-        fig.savefig(path, dpi=100)
-        plt.close(fig)
-        return path
 
 
 def geometric_coverage(lumen: FittedLumen, poses: np.ndarray, depth: Sequence[np.ndarray],

@@ -179,19 +179,6 @@ def test_geometric_coverage_bad_input():
                            region=np.ones((3, 3), bool), config=config)
 
 
-def test_map_files(tmp_path):
-    result = geometric_coverage(AXIS, FORWARD[None], [cylinder_depth(FORWARD_CAMERA, FORWARD)],
-                                FORWARD_CAMERA.K, config=GeometricConfig(segment_frames=1))
-    saved = np.load(result.save_map(tmp_path / "map.npz"))
-    assert saved["first_seen"].shape == saved["expected"].shape == result.cells.area.shape
-    # The seen cells of the expected band are the segment's coverage, by area.
-    seen = (saved["first_seen"] == 0) & saved["expected"]
-    area = result.cells.area
-    assert area[seen].sum() / area[saved["expected"]].sum() == pytest.approx(
-        result.segments[0].coverage[pair_key((1.0, 4.0))])
-    assert result.plot_map(tmp_path / "map.png").stat().st_size > 0
-
-
 def test_reconstruction_fixes_the_scale_by_the_typical_radius():
     """Cameras withdrawing along the axis of a 2 cm cylinder, depth in mm (× 10): the scale rule
     (median radius 2.5 cm) gives 0.125 cm per input unit, a mesh on the 2.5 cm wall, and a
