@@ -38,6 +38,8 @@ class ReconstructionConfig:
     """Frames between those back-projected for the first (scale) lumen fit."""
     cloud_pixel_stride: int = 4
     """Pixels between those back-projected, along each image axis."""
+    tsdf_stride: int = 1
+    """Fuse every n-th frame into the TSDF."""
     lumen: LumenFitConfig = field(default_factory=LumenFitConfig)
     """Lumen fit."""
 
@@ -105,7 +107,8 @@ def reconstruct(depth: Sequence[np.ndarray], K: np.ndarray, poses: np.ndarray,
     metric[:, :3, 3] *= scale
     scaled = ScaledDepth(depth, scale, region)
     frames = ((scaled[i], None if rgb is None else rgb[i]) for i in range(len(poses)))
-    tsdf = TsdfConfig(voxel_size=config.voxel_cm, depth_max=config.depth_max_cm)
+    tsdf = TsdfConfig(voxel_size=config.voxel_cm, depth_max=config.depth_max_cm,
+                      stride=config.tsdf_stride)
     mesh = fuse(frames, K, metric, tsdf, name=name, progress=progress)
     lumen = fit_lumen(metric, mesh.vertices, fps, config.lumen, name=name)
     return Reconstruction(metric, float(scale), mesh, lumen)
