@@ -62,7 +62,7 @@ def lumen_errors(fitted_points: np.ndarray, fitted_radius: np.ndarray, proc: Pro
 
 
 def run_procedure(proc: Procedure, model, graph: PoseGraphConfig, config: ReconstructionConfig,
-                  modes: tuple[str, ...] = MODES) -> dict:
+                  geometric: GeometricConfig, modes: tuple[str, ...] = MODES) -> dict:
     truth = proc.coverage.segment_labels()
     depth_true = [proc.depth(i) for i in range(proc.num_frames)]
     rgb = [proc.rgb(i) for i in range(proc.num_frames)]
@@ -81,7 +81,7 @@ def run_procedure(proc: Procedure, model, graph: PoseGraphConfig, config: Recons
             learned["poses"] = smooth_trajectory(relative, graph, name=str(proc.path)).poses
         if mode == "learned-local":
             local = local_segment_coverage(learned["depth"], learned["K"], learned["poses"],
-                                           300, 150, None, config, GeometricConfig(),
+                                           300, 150, None, config, geometric,
                                            proc.camera.fps, proc.path.name)
             pred = [np.nan if s.segment.coverage["1-4"] is None else s.segment.coverage["1-4"]
                     for s in local]
@@ -100,7 +100,8 @@ def run_procedure(proc: Procedure, model, graph: PoseGraphConfig, config: Recons
                      "oracle-rule": None}[mode]
         rec = reconstruct(depth, K, poses, rgb, config=config, scale=scale, fps=proc.camera.fps,
                           name=proc.path.name)
-        result = geometric_coverage(rec.lumen, rec.poses, ScaledDepth(depth, rec.scale), K)
+        result = geometric_coverage(rec.lumen, rec.poses, ScaledDepth(depth, rec.scale), K,
+                                    config=geometric)
         seconds = time.time() - tic
         row = {"pred": result.labels().tolist(), "scale": rec.scale, "seconds": seconds,
                "network_seconds": network_s, "frames": proc.num_frames}
@@ -119,9 +120,9 @@ def run_procedure(proc: Procedure, model, graph: PoseGraphConfig, config: Recons
     return out
 
 
-def summary(results: dict) -> dict:
+def summary(results: dict, modes: tuple[str, ...]) -> dict:
     table = {}
-    for mode in next(iter(results.values())).keys() - {"truth"}:
+    for mode in modes:
         truth = np.concatenate([r["truth"] for r in results.values()])
         pred = np.concatenate([r[mode]["pred"] for r in results.values()])
         ok = np.isfinite(truth) & np.isfinite(pred)
@@ -139,14 +140,11 @@ def summary(results: dict) -> dict:
     return table
 
 
-def scatter(results: dict, path: Path) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
+def scatter(results: dict, modes: tuple[str, ...], path: Path) -> None:
     import matplotlib.pyplot as plt
 
-    fig, axes = plt.subplots(1, 2, figsize=(9, 4.4))
-    for ax, mode in zip(axes, ("oracle", "learned-local"), strict=True):
+    fig, axes = plt.subplots(1, len(modes), figsize=(4.5 * len(modes), 4.4), squeeze=False)
+    for ax, mode in zip(axes[0], modes, strict=True):
         truth = np.concatenate([r["truth"] for r in results.values()])
         pred = np.concatenate([r[mode]["pred"] for r in results.values()])
         ax.scatter(truth, pred, s=14, alpha=0.7)
@@ -167,20 +165,25 @@ def main() -> None:
     parser.add_argument("--out", type=Path, default=Path("docs/geometric"))
     parser.add_argument("--checkpoint", type=Path, default=None)
     parser.add_argument("--modes", nargs="+", default=list(MODES), choices=MODES)
+    parser.add_argument("--occlusion-tolerance", type=float,
+                        default=GeometricConfig().occlusion_tolerance,
+                        help="GeometricConfig.occlusion_tolerance (× local radius)")
     args = parser.parse_args()
+    modes = tuple(args.modes)
+    geometric = GeometricConfig(occlusion_tolerance=args.occlusion_tolerance)
     torch.set_num_threads(1)
     from learned.checkpoints import SHIPPED_DEPTH
 
     model = load_depth_model(args.checkpoint or SHIPPED_DEPTH)
     graph, config = PoseGraphConfig(), ReconstructionConfig()
     results = {f"{p.parent.name}/{p.name}": run_procedure(Procedure.open(p), model, graph,
-                                                           config, tuple(args.modes))
+                                                           config, geometric, modes)
                for p in expand_inputs(args.data)}
-    table = summary(results)
+    table = summary(results, modes)
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "geometric_eval.json").write_text(json.dumps(
         {"summary": table, "procedures": results}, indent=1) + "\n")
-    scatter(results, args.out / "geometric_scatter.png")
+    scatter(results, modes, args.out / "geometric_scatter.png")
     print(f"{'mode':12s} {'MAE':>6s} {'bias':>7s} {'3-class':>8s} {'n':>4s} "
           f"{'centre cm':>9s} {'r err cm':>8s} {'fps':>6s}")
     for mode, m in table.items():

@@ -1,0 +1,80 @@
+"""Cross-validated coverage errors split by where the camera looks.
+
+For each fold model of a `c2d2 train-coverage` run, predicts its held-out procedures and splits
+the errors by the cosine between each camera's view axis and the lumen direction at its
+position: looking down the lumen (> 0.5), sideways, or back towards the rectum (< -0.5); and
+segments by their share of backward-looking frames.
+
+    python benchmarks/coverage_by_view.py --run data/runs/coverage-fast \
+        --data data/cov-pink data/cov-dusk
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from hybrid.coverage import Lumen
+from hybrid.dataset import Procedure
+from learned.coverage_nets import load_coverage_model
+from learned.coverage_train import fold_split, load_samples
+
+
+def view_cosine(proc: Procedure) -> np.ndarray:
+    """(N,) cosine between each camera's z axis and the lumen tangent at its nearest point."""
+    lumen = Lumen(proc.lumen)
+    ell, _ = lumen.project(proc.poses[:, :3, 3])
+    tangent = np.gradient(lumen.points, lumen.arclength, axis=0)
+    along = np.stack([np.interp(ell, lumen.arclength, tangent[:, k]) for k in range(3)], 1)
+    along /= np.linalg.norm(along, axis=1, keepdims=True)
+    return np.einsum("ij,ij->i", along, proc.poses[:, :3, 2])
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--run", type=Path, default=Path("data/runs/coverage-fast"))
+    parser.add_argument("--data", nargs="+", type=Path,
+                        default=[Path("data/cov-pink"), Path("data/cov-dusk")])
+    parser.add_argument("--backward-share", type=float, default=0.2)
+    args = parser.parse_args()
+    torch.set_num_threads(1)
+    record = json.loads((args.run / "record.json").read_text())
+    first = load_coverage_model(args.run / "fold-0.safetensors")
+    samples = load_samples(args.data, first.config, Path(record["depth_checkpoint"]["path"]))
+    groups = {"forward": [], "sideways": [], "backward": []}
+    segments = []
+    for k, held in enumerate(fold_split(len(samples), first.config.folds, first.config.seed)):
+        model = load_coverage_model(args.run / f"fold-{k}.safetensors")
+        for i in held:
+            s = samples[i]
+            cosine = view_cosine(Procedure.open(Path("data") / s.name))
+            pred, features = model.frame_outputs(s.inputs)
+            truth = s.frame_labels[:, 1]  # Δ = (1, 4)
+            ok = np.isfinite(truth)
+            error = np.abs(pred[:, 1] - truth)
+            groups["forward"] += error[ok & (cosine > 0.5)].tolist()
+            groups["backward"] += error[ok & (cosine < -0.5)].tolist()
+            groups["sideways"] += error[ok & (np.abs(cosine) <= 0.5)].tolist()
+            values = model.segment_outputs(features, s.segment_starts.tolist())
+            T = model.config.segment_frames
+            for start, value, label in zip(s.segment_starts, values, s.segment_labels,
+                                           strict=True):
+                segments.append((np.mean(cosine[start:start + T] < -0.5), value - label))
+    total = sum(len(v) for v in groups.values())
+    for name, errors in groups.items():
+        print(f"{name:9s} frames {len(errors):6d} ({len(errors) / total:.0%})  per-frame MAE "
+              f"(1,4) {np.mean(errors):.3f}")
+    share, error = np.array(segments).T
+    ok = np.isfinite(error)
+    many = ok & (share > args.backward_share)
+    for name, pick in ((f"segments with > {args.backward_share:.0%} backward frames", many),
+                       ("the other segments", ok & ~many)):
+        print(f"{name:38s} {pick.sum():4d}  segment MAE {np.abs(error[pick]).mean():.3f}")
+
+
+if __name__ == "__main__":
+    main()
