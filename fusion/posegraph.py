@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import gtsam
 import numpy as np
 
-from hybrid.types import InputError, check_poses
+from hybrid.types import InputError, chain_poses, check_poses
 
 _MAX_STEPS = 1e6
 """Longest plausible relative translation, in median gap-1 steps."""
@@ -84,14 +84,6 @@ class PoseGraphResult:
     """Wall time of building and optimising the graph."""
 
 
-def chain(relative: np.ndarray) -> np.ndarray:
-    """(N, 4, 4) camera-to-world poses from (N-1, 4, 4) consecutive relative poses."""
-    poses = [np.eye(4)]
-    for T in relative:
-        poses.append(poses[-1] @ np.linalg.inv(T))
-    return np.stack(poses)
-
-
 def smooth_trajectory(relative: dict[int, np.ndarray], config: PoseGraphConfig,
                       name: str = "poses") -> PoseGraphResult:
     """Camera-to-world poses (N, 4, 4) agreeing best with the relative poses of every skip.
@@ -102,7 +94,7 @@ def smooth_trajectory(relative: dict[int, np.ndarray], config: PoseGraphConfig,
     start = time.perf_counter()
     measured = _checked(relative, config, name)
     count = len(measured[1]) + 1
-    chained = chain(measured[1])
+    chained = chain_poses(measured[1])
     step = _median_step(measured, name)
     sigmas = np.array([config.rotation_sigma] * 3 + [config.translation_sigma * step] * 3)
     graph = _Graph(measured, config, sigmas)

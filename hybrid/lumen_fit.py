@@ -23,7 +23,6 @@ the camera path), so the fit works in any unit, e.g. before the metric scale is 
 from __future__ import annotations
 
 import json
-import os
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -32,6 +31,7 @@ from scipy.ndimage import gaussian_filter1d
 from scipy.spatial import cKDTree
 
 from hybrid.types import InputError, check_poses
+from hybrid.workdir import write_json
 
 
 @dataclass(frozen=True)
@@ -83,11 +83,8 @@ class FittedLumen:
 
     def save(self, path: Path) -> None:
         """lumen.json: points, radius, arclength (written atomically)."""
-        path = Path(path)
-        tmp = path.with_name(path.name + ".tmp")
-        tmp.write_text(json.dumps({"points": self.points.tolist(), "radius": self.radius.tolist(),
-                                   "arclength": self.arclength.tolist()}) + "\n")
-        os.replace(tmp, path)
+        write_json(path, {"points": self.points.tolist(), "radius": self.radius.tolist(),
+                          "arclength": self.arclength.tolist()})
 
     @classmethod
     def load(cls, path: Path) -> FittedLumen:

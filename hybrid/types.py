@@ -88,3 +88,12 @@ def check_poses(poses: np.ndarray, name: str = "poses") -> np.ndarray:
             f"0 0 0 1); frames {bad[:10].tolist()} are not"
         )
     return poses
+
+
+def chain_poses(relative: np.ndarray) -> np.ndarray:
+    """(N, 4, 4) camera-to-world poses, the first the identity, from (N-1, 4, 4) relative poses
+    (relative[t] maps camera t's points into camera t+1): P[t+1] = P[t] · inverse(relative[t])."""
+    poses = [np.eye(4)]
+    for T in relative:
+        poses.append(poses[-1] @ np.linalg.inv(T))
+    return np.stack(poses)

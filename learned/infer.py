@@ -20,7 +20,7 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from hybrid.types import Camera, InputError
+from hybrid.types import Camera, InputError, chain_poses
 from learned.frames import Crop, FrameSequence
 from learned.geometry import transform_from
 from learned.model import DepthModel, to_tensor
@@ -39,11 +39,8 @@ class DepthOutput:
 
     @property
     def poses(self) -> np.ndarray:
-        """(N, 4, 4) camera-to-world poses: P[t+1] = P[t] · inverse(relative[t])."""
-        poses = [np.eye(4)]
-        for T in self.relative:
-            poses.append(poses[-1] @ np.linalg.inv(T))
-        return np.stack(poses)
+        """(N, 4, 4) camera-to-world poses chained from the relative ones."""
+        return chain_poses(self.relative)
 
 
 @torch.no_grad()
