@@ -69,6 +69,20 @@ def load_modules(tensors: dict[str, torch.Tensor], modules: dict[str, torch.nn.M
                              f"of another preset?): {str(err).splitlines()[0]}") from err
 
 
+def load_model(path: Path, kind: str, config_cls, build, preset: str | None = None
+               ) -> torch.nn.Module:
+    """A model saved by save_checkpoint, in eval mode: build(config) with the config read from
+    the file, then the weights of each of its child modules; checks its preset if given."""
+    tensors, meta = read_checkpoint(path, kind)
+    config = config_cls.from_dict(meta["config"])
+    if preset is not None and config.preset != preset:
+        raise InputError(f"{path} is a {config.preset!r}-preset {kind} model, but the "
+                         f"{preset!r} preset was asked for")
+    model = build(config)
+    load_modules(tensors, dict(model.named_children()), path)
+    return model.eval()
+
+
 def load_optimizer(tensors: dict[str, torch.Tensor], meta: dict,
                    optimizer: torch.optim.Optimizer) -> None:
     state: dict[int, dict[str, torch.Tensor]] = {}

@@ -22,7 +22,7 @@ from torch import nn
 
 from hybrid.coverage import DELTA_PAIRS_CM
 from hybrid.types import InputError
-from learned.checkpoint import load_modules, read_checkpoint, save_checkpoint
+from learned.checkpoint import load_model, save_checkpoint
 from learned.config import CoverageConfig
 from learned.nets import ResNetEncoder
 
@@ -178,11 +178,4 @@ class CoverageModel(nn.Module):
 
 def load_coverage_model(path: Path, preset: str | None = None) -> CoverageModel:
     """A trained coverage model in eval mode; checks its preset if one is given."""
-    tensors, meta = read_checkpoint(path, kind="coverage")
-    config = CoverageConfig.from_dict(meta["config"])
-    if preset is not None and config.preset != preset:
-        raise InputError(f"{path} is a {config.preset!r}-preset coverage model, but the "
-                         f"{preset!r} preset was asked for")
-    model = CoverageModel(config)
-    load_modules(tensors, {"frame": model.frame, "segment": model.segment}, path)
-    return model.eval()
+    return load_model(path, "coverage", CoverageConfig, CoverageModel, preset)

@@ -8,8 +8,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from hybrid.types import InputError
-from learned.checkpoint import load_modules, read_checkpoint
+from learned.checkpoint import load_model
 from learned.config import DepthConfig
 from learned.losses import LossTerms, view_synthesis_loss
 from learned.nets import DepthNet, MotionNet
@@ -64,11 +63,4 @@ def to_tensor(images: np.ndarray) -> torch.Tensor:
 
 def load_depth_model(path: Path, preset: str | None = None) -> DepthModel:
     """A trained model in eval mode; checks that it is of the expected preset if one is given."""
-    tensors, meta = read_checkpoint(path, kind="depth")
-    config = DepthConfig.from_dict(meta["config"])
-    if preset is not None and config.preset != preset:
-        raise InputError(f"{path} is a {config.preset!r}-preset checkpoint, but the "
-                         f"{preset!r} preset was asked for")
-    model = DepthModel(config)
-    load_modules(tensors, {"depth": model.depth, "motion": model.motion}, path)
-    return model.eval()
+    return load_model(path, "depth", DepthConfig, DepthModel, preset)
