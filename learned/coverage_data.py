@@ -63,6 +63,11 @@ def procedure_samples(path: Path, config: CoverageConfig, depth_model: DepthMode
     depth_tag names the depth model (e.g. a hash of its checkpoint) in the cache file name.
     """
     proc = Procedure.open(path)
+    truth = proc.coverage
+    T, stride = config.segment_frames, config.segment_stride
+    if truth.segment_frames != T:
+        raise InputError(f"{proc.path}: its segments are {truth.segment_frames} frames, the "
+                         f"coverage networks' are {T}")
     cache = proc.path / "cache"
     size = f"{config.height}x{config.width}" + ("" if config.median_normalise else "-log")
     if config.input_depth == "true":
@@ -70,13 +75,8 @@ def procedure_samples(path: Path, config: CoverageConfig, depth_model: DepthMode
     else:
         name = f"input-{depth_tag}-{size}.npy"
     inputs = _cached(cache / name, lambda: _inputs(proc, config, depth_model, progress))
-    T, stride = config.segment_frames, config.segment_stride
     windows = _cached(cache / f"windows-{T}-{stride}.npy",
                       lambda: _window_labels(proc, T, stride, progress))
-    truth = proc.coverage
-    if truth.segment_frames != T:
-        raise InputError(f"{proc.path}: its segments are {truth.segment_frames} frames, the "
-                         f"coverage networks' are {T}")
     labels = np.array([[np.nan if v is None else v for v in truth.per_frame[pair_key(p)]]
                        for p in truth.delta_pairs], dtype=np.float32).T
     return ProcedureSamples(

@@ -230,12 +230,17 @@ def test_rerun_skips_every_stage(pipeline_run, procedure):
 # --- resuming a work directory ---------------------------------------------------------------
 
 
-def test_cli_resumes_a_partial_run_with_the_same_config(pipeline_run, procedure, tmp_path):
-    out, _ = pipeline_run
+def interrupted_copy(out: Path, tmp_path: Path) -> tuple[Path, dict[str, int]]:
+    """A copy of a finished run, then interrupted (see `interrupt`), and its file snapshot."""
     work = tmp_path / "work"
     shutil.copytree(out, work)
     interrupt(work)
-    kept = snapshot(work)
+    return work, snapshot(work)
+
+
+def test_cli_resumes_a_partial_run_with_the_same_config(pipeline_run, procedure, tmp_path):
+    out, _ = pipeline_run
+    work, kept = interrupted_copy(out, tmp_path)
     result = runner.invoke(app, ["run", str(procedure.path), "--out", str(work)])
     assert result.exit_code == 0, result.output
     for stage in STAGES[:5]:
@@ -254,10 +259,7 @@ def test_cli_resumes_a_partial_run_with_the_same_config(pipeline_run, procedure,
 
 def test_cli_refuses_a_partial_run_with_another_config(pipeline_run, procedure, tmp_path):
     out, _ = pipeline_run
-    work = tmp_path / "work"
-    shutil.copytree(out, work)
-    interrupt(work)
-    kept = snapshot(work)
+    work, kept = interrupted_copy(out, tmp_path)
     result = runner.invoke(app, ["run", str(procedure.path), "--out", str(work), "--fps", "5"])
     message = assert_input_error(result, str(work))
     assert "another configuration" in message
