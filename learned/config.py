@@ -35,6 +35,10 @@ class DepthConfig:
     """Triplets per step."""
     learning_rate: float = 5e-4
     """Adam learning rate."""
+    lr_drop_step: int = 0
+    """From this step on the learning rate is multiplied by lr_drop_factor (0: never)."""
+    lr_drop_factor: float = 0.1
+    """Factor of the learning-rate drop."""
     grad_clip: float = 10.0
     """Gradient norm clip."""
     steps: int = 6000
@@ -45,6 +49,9 @@ class DepthConfig:
     """SSIM window (pixels)."""
     w_l1: float = 0.15
     """Weight of L1 in the photometric error."""
+    coarse_levels: int = 0
+    """Also compare target and source at 1/2, 1/4, ... resolution (block means), averaged with
+    the full-resolution error: wider-reaching gradients, less sensor noise on weak texture."""
     w_smooth: float = 1e-3
     """Edge-aware smoothness of mean-normalised disparity."""
     w_depth_consistency: float = 1e-2
@@ -66,6 +73,11 @@ class DepthConfig:
     """Scale warped intensity by (source ray length / target ray length)^2 (light at camera)."""
     seed: int = 0
     """Random seed (initialisation and sampling)."""
+
+    def lr_at(self, step: int) -> float:
+        """Learning rate of training step `step` (counted from 0)."""
+        dropped = 0 < self.lr_drop_step <= step
+        return self.learning_rate * (self.lr_drop_factor if dropped else 1.0)
 
     def to_dict(self) -> dict:
         return asdict(self)

@@ -36,6 +36,8 @@ class Warp:
     """(B, 1, H, W) the source's own depth sampled at the same places (if given)."""
     ray_ratio: torch.Tensor
     """(B, 1, H, W) distance to the source camera / distance to the target camera."""
+    where: torch.Tensor
+    """(B, H, W, 2) where each target pixel lands in the source, in source pixels (u, v)."""
 
 
 def warp(source: torch.Tensor, target_depth: torch.Tensor, T_target_to_source: torch.Tensor,
@@ -62,4 +64,5 @@ def warp(source: torch.Tensor, target_depth: torch.Tensor, T_target_to_source: t
         depth_in_source=z[:, None],
         sampled_source_depth=None if source_depth is None else sample(source_depth),
         ray_ratio=ratio[:, None],
+        where=torch.stack([u, v], dim=-1),
     )

@@ -1,6 +1,7 @@
 """View-synthesis losses (paper eq. 1; Gordon et al. 2019; monodepth2).
 
-photometric (L1 + SSIM) with per-pixel minimum over sources and auto-masking,
+photometric (L1 + SSIM, optionally also at coarser resolutions) with per-pixel minimum over
+sources and auto-masking,
 occlusion-aware depth consistency, rotation/translation cycle consistency, edge-aware
 smoothness. Endoscopy helps: per-pair brightness match, specular and border masks, and an
 optional inverse-square correction for the light that moves with the camera.
@@ -11,6 +12,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import torch
+import torch.nn.functional as F
 from kornia.losses import inverse_depth_smoothness_loss
 from kornia.metrics import ssim
 
@@ -26,6 +28,40 @@ def photometric_error(a: torch.Tensor, b: torch.Tensor, config: DepthConfig) -> 
     l1 = (a - b).abs().mean(1, keepdim=True)
     dssim = ((1 - ssim(a, b, config.ssim_window)) / 2).clamp(0, 1).mean(1, keepdim=True)
     return config.w_ssim * dssim + config.w_l1 * l1
+
+
+def _coarse_error(source: torch.Tensor, target: torch.Tensor, w: Warp, mask: torch.Tensor,
+                  level: int, config: DepthConfig) -> torch.Tensor:
+    """Photometric error at 1/2^level resolution, brought back to (B, 1, H, W).
+
+    Target and source are block means; each block of the target samples the coarse source at
+    the mean of its pixels' landing points. Brightness is matched over fully usable blocks.
+    """
+    factor = 2**level
+    source, target = F.avg_pool2d(source, factor), F.avg_pool2d(target, factor)
+    height, width = source.shape[-2:]
+    where = (F.avg_pool2d(w.where.permute(0, 3, 1, 2), factor) + 0.5) / factor - 0.5
+    grid = torch.stack([2 * where[:, 0] / (width - 1) - 1, 2 * where[:, 1] / (height - 1) - 1],
+                       dim=-1)
+    image = F.grid_sample(source, grid, mode="bilinear", padding_mode="border",
+                          align_corners=True)
+    image = image * F.avg_pool2d(_light_factor(w, config), factor)
+    if config.brightness_match:
+        image = match_brightness(image, target, F.avg_pool2d(mask.float(), factor) > 0.999)
+    error = photometric_error(image, target, config)
+    return F.interpolate(error, size=mask.shape[-2:], mode="nearest")
+
+
+def _identity_error(source: torch.Tensor, target: torch.Tensor, config: DepthConfig
+                    ) -> torch.Tensor:
+    """Error of the un-warped source, averaged over the same resolutions as the warped one."""
+    errors = [photometric_error(source, target, config)]
+    for level in range(1, config.coarse_levels + 1):
+        factor = 2**level
+        coarse = photometric_error(F.avg_pool2d(source, factor), F.avg_pool2d(target, factor),
+                                   config)
+        errors.append(F.interpolate(coarse, size=target.shape[-2:], mode="nearest"))
+    return torch.stack(errors).mean(0)
 
 
 def match_brightness(warped: torch.Tensor, target: torch.Tensor, mask: torch.Tensor
@@ -92,12 +128,15 @@ def view_synthesis_loss(
         mask = compared & w.valid
         if config.mask_out_of_view:
             compared = mask
-        image = _relit(w, config)
+        image = w.image * _light_factor(w, config)
         if config.brightness_match:
             image = match_brightness(image, target, mask)
-        error = photometric_error(image, target, config)
+        levels = [photometric_error(image, target, config)]
+        levels += [_coarse_error(source, target, w, mask, level, config)
+                   for level in range(1, config.coarse_levels + 1)]
+        error = torch.stack(levels).mean(0)
         errors.append(torch.where(compared, error, torch.full_like(error, 1e3)))
-        identity_errors.append(photometric_error(source, target, config))
+        identity_errors.append(_identity_error(source, target, config))
         consistency.append(_depth_consistency(w, mask))
         cycle = T_st @ T_ts
         eye = torch.eye(3, device=cycle.device, dtype=cycle.dtype)
@@ -126,11 +165,12 @@ def view_synthesis_loss(
                      translation_cycle)
 
 
-def _relit(w: Warp, config: DepthConfig) -> torch.Tensor:
-    """Warped source intensity, corrected for the light at the camera if configured."""
+def _light_factor(w: Warp, config: DepthConfig) -> torch.Tensor:
+    """(B, 1, H, W) factor on the warped source's intensity for the light at the camera: the
+    inverse-square correction if configured, else 1."""
     if not config.inverse_square:
-        return w.image
-    return w.image * (w.ray_ratio.detach() ** 2).clamp(0.25, 4.0)
+        return torch.ones_like(w.ray_ratio)
+    return (w.ray_ratio.detach() ** 2).clamp(0.25, 4.0)
 
 
 def _depth_consistency(w: Warp, mask: torch.Tensor) -> torch.Tensor:

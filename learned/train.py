@@ -107,17 +107,10 @@ def train_depth(data: list[Path], out: Path, config: DepthConfig, val: list[Path
     out.mkdir(parents=True, exist_ok=True)
     path = out / CHECKPOINT
     step, tensors, meta, elapsed = 0, None, None, 0.0
-    if path.is_file():  # resume with the run's own config; only the number of steps may change
+    if path.is_file():  # resume with the run's own config, see _resumed_config
         tensors, meta = read_checkpoint(path)
-        saved = DepthConfig.from_dict(meta["config"])
-        if saved.preset != config.preset:
-            raise InputError(f"{path} holds a {saved.preset!r} run; use another --out for the "
-                             f"{config.preset!r} preset")
-        if replace(config, steps=saved.steps) != saved:
-            log.warning("%s: resuming with the run's own config; only --steps is taken from "
-                        "the command line", path)
-        config = replace(saved, steps=config.steps)
         step = meta["step"]
+        config = _resumed_config(DepthConfig.from_dict(meta["config"]), config, step, path)
         log.info("resuming %s at step %d", path, step)
         elapsed = _drop_records_after(out / "metrics.jsonl", step)
     size = (config.height, config.width)
@@ -145,6 +138,8 @@ def train_depth(data: list[Path], out: Path, config: DepthConfig, val: list[Path
         terms = model.loss(frames, region)
         optimizer.zero_grad()
         terms.total.backward()
+        for group in optimizer.param_groups:
+            group["lr"] = config.lr_at(step)
         torch.nn.utils.clip_grad_norm_(model.parameters(), config.grad_clip)
         optimizer.step()
         step += 1
@@ -169,6 +164,28 @@ def train_depth(data: list[Path], out: Path, config: DepthConfig, val: list[Path
     metrics_log.close()
     export_weights(path, out / WEIGHTS)
     return path
+
+
+def _resumed_config(saved: DepthConfig, asked: DepthConfig, step: int, path: Path
+                    ) -> DepthConfig:
+    """The config a run resumed at `step` goes on with: its own, except --steps and a
+    learning-rate drop that has not happened yet, so that the resumed run trains exactly as a
+    fresh run with the final config would have."""
+    if saved.preset != asked.preset:
+        raise InputError(f"{path} holds a {saved.preset!r} run; use another --out for the "
+                         f"{asked.preset!r} preset")
+    config = replace(saved, steps=asked.steps)
+    if (asked.lr_drop_step, asked.lr_drop_factor) != (saved.lr_drop_step, saved.lr_drop_factor):
+        if 0 < saved.lr_drop_step <= step or 0 < asked.lr_drop_step < step:
+            raise InputError(f"{path}: cannot change the learning-rate drop (step "
+                             f"{saved.lr_drop_step} -> {asked.lr_drop_step}) at step {step}: "
+                             "the drop must lie at or after the step the run resumes from")
+        config = replace(config, lr_drop_step=asked.lr_drop_step,
+                         lr_drop_factor=asked.lr_drop_factor)
+    if replace(asked, steps=config.steps) != config:
+        log.warning("%s: resuming with the run's own config; only --steps and a future "
+                    "learning-rate drop are taken from the command line", path)
+    return config
 
 
 def _drop_records_after(metrics: Path, step: int) -> float:

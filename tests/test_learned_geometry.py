@@ -9,6 +9,7 @@ depth, pose and K is bilinear resampling of a smooth texture.
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -16,8 +17,8 @@ import torch
 import torch.nn.functional as F
 
 from learned.config import DepthConfig
-from learned.geometry import transform_from, warp
-from learned.losses import photometric_error
+from learned.geometry import Warp, transform_from, warp
+from learned.losses import _coarse_error, photometric_error
 
 H, W = 48, 64
 FX, FY, CX, CY = 50.0, 52.0, 31.7, 23.4
@@ -200,3 +201,49 @@ def test_transform_from_is_batched_and_composes():
                                transform_from(r[:1] * 2, torch.zeros(1, 3, dtype=torch.float64)
                                               )[0].numpy(), atol=1e-12)
     np.testing.assert_allclose((T[0] @ T[2]).numpy(), np.eye(4), atol=1e-12)
+
+
+
+def test_coarse_levels_follow_the_warp_of_the_analytic_scene(scene):
+    """At 1/2 and 1/4 resolution the true pose still explains the target best: a 1.5x
+    translation, which misregisters by more than half a pixel at full resolution (see above),
+    at least doubles the coarse error, although that is under 1/4 of a pixel at 1/4 size."""
+    mask = torch.ones(1, 1, H, W, dtype=torch.bool)
+
+    def coarse(T: torch.Tensor, level: int) -> float:
+        w = warp(scene["source"], scene["depth"], T, intrinsics())
+        keep = interior(w.valid)[..., 4:-4, 4:-4]
+        error = _coarse_error(scene["source"], scene["target"], w, mask, level, DepthConfig())
+        return float(error[..., 4:-4, 4:-4][keep].mean())
+
+    for level in (1, 2):
+        true_error = coarse(matrix(R_TRUE, T_TRUE), level)
+        assert coarse(matrix(R_TRUE, 1.5 * T_TRUE), level) > 2 * true_error
+
+
+def test_coarse_levels_reach_further_than_full_resolution():
+    """White noise shifted by s pixels while the warp assumes no motion: the full-resolution
+    error is at its ceiling from 1 pixel on, but a level of block size b = 2^level keeps
+    growing until s = b (correlation of block means 1 - s/b, L1 error proportional to
+    sqrt(s/b): x1.41 from s = b/2 to s = b), then stays."""
+    image = torch.rand(1, 3, 256, 320, generator=torch.Generator().manual_seed(1))
+    config = replace(DepthConfig(), w_ssim=0.0, w_l1=1.0, brightness_match=False)
+    v, u = torch.meshgrid(torch.arange(128.0), torch.arange(160.0), indexing="ij")
+    still = Warp(image=None, valid=None, depth_in_source=None, sampled_source_depth=None,
+                 ray_ratio=torch.ones(1, 1, 128, 160), where=torch.stack([u, v], -1)[None])
+    target = image[..., 64:192, 80:240]
+    mask = torch.ones(1, 1, 128, 160, dtype=torch.bool)
+
+    def error(shift: int, level: int) -> float:
+        source = image[..., 64:192, 80 + shift:240 + shift]
+        if level == 0:
+            e = photometric_error(source, target, config)
+        else:
+            e = _coarse_error(source, target, still, mask, level, config)
+        return float(e[..., 8:-8, 8:-8].mean())
+
+    assert error(8, 0) == pytest.approx(error(1, 0), rel=0.02)
+    for level in (1, 2):
+        b = 2**level
+        assert error(b, level) / error(b // 2, level) == pytest.approx(math.sqrt(2), rel=0.05)
+        assert error(2 * b, level) == pytest.approx(error(b, level), rel=0.02)

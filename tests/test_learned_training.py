@@ -12,6 +12,7 @@ import pytest
 import torch
 from conftest import TINY
 
+from hybrid.types import InputError
 from learned.checkpoint import export_weights, read_checkpoint, save_checkpoint
 from learned.config import DepthConfig
 from learned.frames import open_sequence
@@ -191,6 +192,26 @@ def test_train_depth_resumes_where_it_stopped(tmp_path, clip):
     straight_records = [json.loads(line)
                         for line in (straight / "metrics.jsonl").read_text().splitlines()]
     assert [r["total"] for r in records] == [r["total"] for r in straight_records]
+
+
+def test_learning_rate_drop_can_be_added_to_a_run_before_it_happens(tmp_path, clip):
+    """A run resumed with a drop at a later step trains exactly as a fresh run with that drop;
+    moving a drop the run has already passed is refused."""
+    config = replace(TINY, steps=2, learning_rate=1e-3)
+    assert [replace(config, lr_drop_step=3, lr_drop_factor=0.5).lr_at(s) for s in (0, 2, 3, 9)
+            ] == [1e-3, 1e-3, 5e-4, 5e-4]
+    assert config.lr_at(10**6) == 1e-3  # lr_drop_step 0: never
+    resumed, straight = tmp_path / "resumed", tmp_path / "straight"
+    train_depth([clip], resumed, config, progress=False)
+    dropped = replace(config, steps=4, lr_drop_step=3, lr_drop_factor=0.5)
+    train_depth([clip], resumed, dropped, progress=False)
+    train_depth([clip], straight, dropped, progress=False)
+    tensors, meta = read_checkpoint(resumed / "checkpoint.safetensors")
+    reference, _ = read_checkpoint(straight / "checkpoint.safetensors")
+    assert DepthConfig.from_dict(meta["config"]) == dropped
+    assert all(torch.equal(tensors[k], reference[k]) for k in reference)
+    with pytest.raises(InputError, match="learning-rate drop"):
+        train_depth([clip], resumed, replace(dropped, steps=6, lr_drop_step=5), progress=False)
 
 
 def test_exported_weights_drop_the_optimiser_and_predict_the_same(tmp_path, batch):

@@ -1,0 +1,120 @@
+"""Where a trained depth model sits against the truth, and how sharply the loss separates them.
+
+On simulated procedures, for triplets every `--every` frames:
+  1. The training loss (learned.losses.view_synthesis_loss, the model's own config) at the
+     truth (true depth, motion and K) and at the model's prediction. A model whose loss is
+     higher than the truth's has not found the optimum of its own loss.
+  2. The model's systematic errors: the slope of log(predicted depth) against log(true depth)
+     per frame (1: no compression), the ratio of predicted to true rotation angle over pairs
+     turning more than 2 degrees, and of predicted to true fx.
+  3. For each number of coarse levels, the loss at the truth and its ratio when the truth is
+     spoiled in the model's ways: depth compressed to gt^0.63 or gt^0.8, focal length x0.8,
+     rotation angles x0.65. Larger ratios: a loss that tells the truth apart more sharply.
+
+    .venv/bin/python benchmarks/depth_diagnosis.py \
+        --model learned/checkpoints/depth-fast.safetensors --data data/val
+"""
+
+from __future__ import annotations
+
+import argparse
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import torch
+from focal_scan import true_motion
+
+from hybrid.dataset import Procedure, list_procedures
+from learned.config import DepthConfig
+from learned.losses import view_synthesis_loss
+from learned.model import load_depth_model, to_tensor
+
+SPOILED = {"depth^0.63": {"power": 0.63}, "depth^0.8": {"power": 0.8},
+           "focal x0.8": {"focal": 0.8}, "rotation x0.65": {"rotation": 0.65}}
+
+
+def triplets(procs: list[Procedure], gap_s: float, every: int):
+    """(procedure, frames (1, 3, 3, H, W), true depths [3 x (1, 1, H, W)], true motions, K)."""
+    for proc in procs:
+        gap = max(1, round(proc.camera.fps * gap_s))
+        K = torch.tensor(proc.camera.K, dtype=torch.float32)[None]
+        for t in range(gap, proc.num_frames - gap, every):
+            ids = (t - gap, t, t + gap)
+            frames = torch.stack([to_tensor(proc.rgb(i)) for i in ids])[None]
+            depths = [torch.from_numpy(proc.depth(i))[None, None].clamp(min=0.01) for i in ids]
+            yield proc, frames, depths, [true_motion(proc.poses, t, s) for s in ids[::2]], K
+
+
+def loss_of(frames, depths, motions, K, config: DepthConfig, power: float = 1.0,
+            focal: float = 1.0, rotation: float = 1.0) -> float:
+    K = K.clone()
+    K[:, 0, 0] *= focal
+    K[:, 1, 1] *= focal
+    motions = [(r * rotation, t, r_back * rotation, t_back) for r, t, r_back, t_back in motions]
+    depths = [d**power for d in depths]
+    region = torch.ones(1, 1, *frames.shape[-2:])
+    torch.manual_seed(0)  # the same auto-mask tie-breaking everywhere
+    return float(view_synthesis_loss(frames[:, 1], [frames[:, 0], frames[:, 2]], depths[1],
+                                     [depths[0], depths[2]], motions, K, region, config).total)
+
+
+def systematic_errors(model, procs: list[Procedure], gap_s: float) -> dict[str, float]:
+    slopes, rotations, focals = [], [], []
+    with torch.no_grad():
+        for proc in procs:
+            gap = max(1, round(proc.camera.fps * gap_s))
+            ts = np.arange(gap, proc.num_frames, 7)
+            a = torch.stack([to_tensor(proc.rgb(t - gap)) for t in ts])
+            b = torch.stack([to_tensor(proc.rgb(t)) for t in ts])
+            rotation, _, _, _, K = model.pair_motion(a, b)
+            focals.append(float(K[:, 0, 0].median()) / proc.camera.fx)
+            true = np.array([true_motion(proc.poses, t - gap, t)[0].norm().item() for t in ts])
+            turning = true > np.radians(2.0)
+            rotations += list(rotation.norm(dim=1).numpy()[turning] / true[turning])
+            depth = model.depth(b[::10])[:, 0].numpy()
+            for pred, t in zip(depth, ts[::10], strict=True):
+                gt = proc.depth(int(t))
+                ok = gt > 0
+                slopes.append(np.polyfit(np.log(gt[ok]), np.log(pred[ok]), 1)[0])
+    return {"log-log slope": float(np.median(slopes)),
+            "rotation ratio": float(np.median(rotations)), "fx ratio": float(np.mean(focals))}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--model", type=Path, required=True)
+    parser.add_argument("--data", type=Path, nargs="+", required=True)
+    parser.add_argument("--every", type=int, default=50, help="frames between target frames")
+    parser.add_argument("--levels", type=int, nargs="+", default=[0, 1, 2, 3])
+    args = parser.parse_args()
+    torch.set_num_threads(1)
+    model = load_depth_model(args.model)
+    procs = [p for d in args.data for p in list_procedures(d)]
+    truth, predicted = [], []
+    for _, frames, depths, motions, K in triplets(procs, model.config.pair_gap_s, args.every):
+        truth.append(loss_of(frames, depths, motions, K, model.config))
+        with torch.no_grad():
+            torch.manual_seed(0)
+            region = torch.ones(1, 1, *frames.shape[-2:])
+            predicted.append(float(model.loss(frames, region).total))
+    print(f"training loss ({len(truth)} triplets, coarse_levels "
+          f"{model.config.coarse_levels}): truth {np.mean(truth):.4f}, "
+          f"model {np.mean(predicted):.4f}")
+    print("systematic errors: " + ", ".join(
+        f"{k} {v:.2f}" for k, v in systematic_errors(model, procs,
+                                                     model.config.pair_gap_s).items()))
+    for levels in args.levels:
+        config = replace(model.config, coarse_levels=levels)
+        rows: dict[str, list[float]] = {"truth": [], **{k: [] for k in SPOILED}}
+        for _, frames, depths, motions, K in triplets(procs, config.pair_gap_s, args.every):
+            rows["truth"].append(loss_of(frames, depths, motions, K, config))
+            for name, spoil in SPOILED.items():
+                rows[name].append(loss_of(frames, depths, motions, K, config, **spoil))
+        base = np.mean(rows["truth"])
+        print(f"coarse_levels {levels}: truth {base:.4f}  " + "  ".join(
+            f"{k} x{np.mean(v) / base:.3f}" for k, v in rows.items() if k != "truth"))
+
+
+if __name__ == "__main__":
+    main()
