@@ -18,7 +18,7 @@ import json
 import logging
 import time
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import cv2
@@ -73,9 +73,6 @@ class RunConfig:
     deficient_below: float = CLASS_EDGES[0]
     """A segment is deficient when its coverage (mean of the branches that ran) is below this:
     the 'mostly not covered' class of the 3-class bins."""
-    mesh_stride: int = 2
-    """Fuse every n-th frame into the whole-video mesh (mesh.ply, lumen.json: for the report;
-    coverage comes from each segment's own reconstruction, which fuses every frame)."""
     posegraph: PoseGraphConfig = field(default_factory=PoseGraphConfig)
     reconstruction: ReconstructionConfig = field(default_factory=ReconstructionConfig)
     geometric: GeometricConfig = field(default_factory=GeometricConfig)
@@ -169,9 +166,8 @@ class _Run:
 
     def reconstruction(self) -> None:
         frames = self.frames()
-        config = replace(self.config.reconstruction, tsdf_stride=self.config.mesh_stride)
         rec = reconstruct(self.depth(), self.network_K(), np.load(self.path(W.POSES)),
-                          rgb=frames, region=self.region, config=config,
+                          rgb=frames, region=self.region, config=self.config.reconstruction,
                           fps=self.ingested.fps, name=self.source.name, progress=self.progress)
         rec.mesh.save(self.path(W.MESH))
         rec.lumen.save(self.path(W.LUMEN))

@@ -38,8 +38,9 @@ class ReconstructionConfig:
     """Frames between those back-projected for the first (scale) lumen fit."""
     cloud_pixel_stride: int = 4
     """Pixels between those back-projected, along each image axis."""
-    tsdf_stride: int = 1
-    """Fuse every n-th frame into the TSDF."""
+    tsdf_stride: int = 2
+    """Fuse every n-th frame into the TSDF. The mesh serves the lumen fit and the report;
+    coverage tests each frame against its own depth, so fusing every frame adds little."""
     lumen: LumenFitConfig = field(default_factory=LumenFitConfig)
     """Lumen fit."""
 
