@@ -5,8 +5,10 @@ On simulated procedures, for triplets every `--every` frames:
      truth (true depth, motion and K) and at the model's prediction. A model whose loss is
      higher than the truth's has not found the optimum of its own loss.
   2. The model's systematic errors: the slope of log(predicted depth) against log(true depth)
-     per frame (1: no compression), the ratio of predicted to true rotation angle over pairs
-     turning more than 2 degrees, and of predicted to true fx.
+     per frame (1: no compression); the relative depth error (median scaling per frame) of the
+     nearest quarter, the middle half and the farthest tenth of the pixels by true depth; the
+     ratio of predicted to true rotation angle over pairs turning more than 2 degrees, and of
+     predicted to true fx.
   3. For each number of coarse levels, the loss at the truth and its ratio when the truth is
      spoiled in the model's ways: depth compressed to gt^0.63 or gt^0.8, focal length x0.8,
      rotation angles x0.65. Larger ratios: a loss that tells the truth apart more sharply.
@@ -60,7 +62,7 @@ def loss_of(frames, depths, motions, K, config: DepthConfig, power: float = 1.0,
 
 
 def systematic_errors(model, procs: list[Procedure], gap_s: float) -> dict[str, float]:
-    slopes, rotations, focals = [], [], []
+    slopes, rotations, focals, truths, errors = [], [], [], [], []
     with torch.no_grad():
         for proc in procs:
             gap = max(1, round(proc.camera.fps * gap_s))
@@ -77,7 +79,15 @@ def systematic_errors(model, procs: list[Procedure], gap_s: float) -> dict[str, 
                 gt = proc.depth(int(t))
                 ok = gt > 0
                 slopes.append(np.polyfit(np.log(gt[ok]), np.log(pred[ok]), 1)[0])
+                scaled = pred[ok] * np.median(gt[ok] / pred[ok])
+                truths.append(gt[ok])
+                errors.append(np.abs(scaled - gt[ok]) / gt[ok])
+    truth, error = np.concatenate(truths), np.concatenate(errors)
+    q25, q75, q90 = np.percentile(truth, [25, 75, 90])
     return {"log-log slope": float(np.median(slopes)),
+            "error nearest 25%": float(error[truth < q25].mean()),
+            "error middle 50%": float(error[(truth >= q25) & (truth < q75)].mean()),
+            "error farthest 10%": float(error[truth >= q90].mean()),
             "rotation ratio": float(np.median(rotations)), "fx ratio": float(np.mean(focals))}
 
 
