@@ -401,17 +401,22 @@ def adapt(
                                                           "shipped one).")] = None,
     segment_seconds: Annotated[float, typer.Option(help="Segment length, as `c2d2 run` will "
                                                    "use it.")] = 10.0,
+    source: Annotated[list[Path] | None, typer.Option(
+        help="Synthetic videos or procedures the model was NOT trained on: their windows "
+             "replace the training windows as CORAL's source statistics.")] = None,
 ):
     """Fit CORAL on unlabelled target videos and save the adapted coverage model.
 
     Each video is ingested and its depth computed as `c2d2 run` does (streamed), its 10-s
     segments resampled to the per-segment network's window, and windows taken every
-    `segment_stride` frames of that resampled time.
+    `segment_stride` frames of that resampled time. With --source, the same is done for
+    held-out synthetic videos, whose windows then give the source statistics.
     """
     import tempfile
 
     from hybrid.pipeline import Models, RunConfig, video_features
     from learned.coral import adapt as fit
+    from learned.coral import set_source
     from learned.coverage_nets import resample_features
     from learned.train import expand_inputs
 
@@ -421,13 +426,21 @@ def adapt(
                        coverage_checkpoint=str(model or _shipped_coverage()),
                        segment_seconds=segment_seconds)
     models = Models.load(config)
-    T = models.coverage.config.segment_frames
-    features = []
+    T, stride = models.coverage.config.segment_frames, models.coverage.config.segment_stride
+
+    def features(paths: list[Path], work: Path) -> list:
+        out = []
+        for k, path in enumerate(expand_inputs(paths)):
+            per_frame, frames = video_features(path, work / str(k), config, models)
+            out.append(resample_features(per_frame, frames, T))
+        return out
+
     with tempfile.TemporaryDirectory() as work:
-        for k, path in enumerate(expand_inputs(target)):
-            per_frame, frames = video_features(path, Path(work) / str(k), config, models)
-            features.append(resample_features(per_frame, frames, T))
-    windows = fit(models.coverage, features, models.coverage.config.segment_stride)
+        if source:
+            windows = set_source(models.coverage, features(source, Path(work) / "source"),
+                                 stride)
+            typer.echo(f"CORAL source statistics from {windows} held-out windows")
+        windows = fit(models.coverage, features(target, Path(work) / "target"), stride)
     models.coverage.save(out)
     typer.echo(f"CORAL fitted on {windows} target windows: {out}")
 

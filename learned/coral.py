@@ -4,7 +4,8 @@ The pooled layer z of the per-segment network (its second-to-last layer) is mapp
 z -> A (z - μt) + μs with A = Cs^(1/2) Ct^(-1/2), so that on the target domain (unlabelled
 video) its mean and covariance become the synthetic training windows' μs and Cs. Both
 covariances get a small ridge (1e-5 of their mean variance) so that A exists when the target
-has fewer windows than dimensions.
+has fewer windows than dimensions. The source statistics can be taken from held-out
+synthetic videos instead of the training windows (`set_source`).
 """
 
 from __future__ import annotations
@@ -46,20 +47,37 @@ def coral_transform(source_mean: np.ndarray, source_cov: np.ndarray, target: np.
     return A, source_mean - A @ target.mean(0)
 
 
+def window_embeddings(model: CoverageModel, features: list[np.ndarray], stride: int,
+                      role: str = "target") -> np.ndarray:
+    """The pooled layer (n, C) of windows every `stride` frames of each video's features."""
+    T = model.config.segment_frames
+    starts = [list(range(0, len(f) - T + 1, stride)) for f in features]
+    if not any(starts):
+        longest = max((len(f) for f in features), default=0)
+        raise InputError(f"CORAL needs {role} videos of at least {T} frames (one segment); "
+                         f"the longest has {longest}")
+    return np.concatenate([model.segment_embeddings(f, ss).double().numpy()
+                           for f, ss in zip(features, starts, strict=True) if ss])
+
+
+def set_source(model: CoverageModel, source_features: list[np.ndarray], stride: int) -> int:
+    """Replace CORAL's source statistics (by default the training windows') by those of
+    windows of synthetic videos the model was not trained on; returns their number."""
+    embedded = window_embeddings(model, source_features, stride, role="source")
+    if len(embedded) < 2:
+        raise InputError(f"CORAL needs at least 2 source segments, got {len(embedded)}")
+    model.segment.source_mean.copy_(torch.from_numpy(embedded.mean(0)).float())
+    model.segment.source_cov.copy_(torch.from_numpy(np.cov(embedded, rowvar=False)).float())
+    return len(embedded)
+
+
 def adapt(model: CoverageModel, target_features: list[np.ndarray], stride: int) -> int:
     """Fit the model's CORAL transform on windows of unlabelled videos' per-frame features.
 
     Returns the number of target windows used. Windows start every `stride` frames.
     """
-    T = model.config.segment_frames
-    starts = [list(range(0, len(f) - T + 1, stride)) for f in target_features]
-    if not any(starts):
-        longest = max((len(f) for f in target_features), default=0)
-        raise InputError(f"CORAL needs target videos of at least {T} frames (one segment); "
-                         f"the longest has {longest}")
+    embedded = window_embeddings(model, target_features, stride)
     net = model.segment
-    embedded = np.concatenate([model.segment_embeddings(f, ss).double().numpy()
-                               for f, ss in zip(target_features, starts, strict=True) if ss])
     A, b = coral_transform(net.source_mean.double().numpy(), net.source_cov.double().numpy(),
                            embedded)
     net.coral_matrix.copy_(torch.from_numpy(A).float())

@@ -16,7 +16,7 @@ from torch import nn
 from hybrid.cli import app
 from hybrid.types import InputError
 from learned.config import COVERAGE_PRESETS, coverage_config, parse_overrides
-from learned.coral import adapt, coral_transform
+from learned.coral import adapt, coral_transform, set_source
 from learned.coverage_data import ProcedureSamples
 from learned.coverage_nets import (
     CoverageModel,
@@ -192,9 +192,10 @@ def test_adapt_makes_target_features_look_like_the_source():
 
     source = walks()
     starts = list(range(0, 200 - SMALL.segment_frames + 1, 3))
+    assert set_source(model, source, stride=3) == 3 * len(starts)
     embedded = torch.cat([model.segment_embeddings(f, starts) for f in source]).double()
-    model.segment.source_mean.copy_(embedded.mean(0).float())
-    model.segment.source_cov.copy_(torch.cov(embedded.T).float())
+    assert torch.allclose(model.segment.source_mean.double(), embedded.mean(0), atol=1e-5)
+    assert torch.allclose(model.segment.source_cov.double(), torch.cov(embedded.T), atol=1e-4)
     # The target domain: the same kind of features, rescaled and shifted.
     target = [2.5 * f + 1.0 for f in walks()]
     used = adapt(model, target, stride=3)
@@ -303,6 +304,16 @@ def test_train_eval_and_adapt_commands(tmp_path, two_procedures):
     assert "CORAL fitted on 10 target windows" in result.output  # 2 x (40 - 20) / 5 + 2
     net = load_coverage_model(adapted).segment
     assert not torch.allclose(net.coral_matrix, torch.eye(len(net.coral_matrix)))
+    trained_source = net.source_mean.clone()
+
+    result = runner.invoke(app, ["adapt", "--target", str(two_procedures), "--out", str(adapted),
+                                 "--source", str(two_procedures / "proc_0000"),
+                                 "--model", str(run / "model.safetensors"),
+                                 "--depth-checkpoint", str(depth),
+                                 "--segment-seconds", str(20 / 30)])
+    assert result.exit_code == 0, result.output
+    assert "source statistics from 5 held-out windows" in result.output  # (40 - 20) / 5 + 1
+    assert not torch.allclose(load_coverage_model(adapted).segment.source_mean, trained_source)
 
 
 def test_eval_coverage_with_a_depth_checkpoint_as_model(tmp_path, two_procedures):
