@@ -176,7 +176,7 @@ def _resumed_config(saved: DepthConfig, asked: DepthConfig, step: int, path: Pat
                          f"{asked.preset!r} preset")
     config = replace(saved, steps=asked.steps)
     if (asked.lr_drop_step, asked.lr_drop_factor) != (saved.lr_drop_step, saved.lr_drop_factor):
-        if 0 < saved.lr_drop_step <= step or 0 < asked.lr_drop_step < step:
+        if 0 < saved.lr_drop_step < step or 0 < asked.lr_drop_step < step:
             raise InputError(f"{path}: cannot change the learning-rate drop (step "
                              f"{saved.lr_drop_step} -> {asked.lr_drop_step}) at step {step}: "
                              "the drop must lie at or after the step the run resumes from")

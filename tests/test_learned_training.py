@@ -210,8 +210,14 @@ def test_learning_rate_drop_can_be_added_to_a_run_before_it_happens(tmp_path, cl
     reference, _ = read_checkpoint(straight / "checkpoint.safetensors")
     assert DepthConfig.from_dict(meta["config"]) == dropped
     assert all(torch.equal(tensors[k], reference[k]) for k in reference)
-    with pytest.raises(InputError, match="learning-rate drop"):
+    with pytest.raises(InputError, match="learning-rate drop"):  # the drop at 3 has happened
         train_depth([clip], resumed, replace(dropped, steps=6, lr_drop_step=5), progress=False)
+    # A drop at the step a run stopped at has not happened yet: it may still move.
+    train_depth([clip], tmp_path / "late", replace(dropped, lr_drop_step=4), progress=False)
+    later = replace(dropped, steps=5, lr_drop_step=5)
+    train_depth([clip], tmp_path / "late", later, progress=False)
+    assert DepthConfig.from_dict(read_checkpoint(tmp_path / "late" / "checkpoint.safetensors")[1]
+                                 ["config"]) == later
 
 
 def test_exported_weights_drop_the_optimiser_and_predict_the_same(tmp_path, batch):
