@@ -262,6 +262,9 @@ def train_depth(
     steps: Annotated[int | None, typer.Option(help="Training steps (preset default).")] = None,
     batch_size: Annotated[int | None, typer.Option(help="Triplets per step.")] = None,
     seed: Annotated[int | None, typer.Option(help="Random seed.")] = None,
+    init: Annotated[Path | None, typer.Option(
+        help="Start a new run from this depth model's weights (fine-tuning, e.g. on your own "
+             "endoscope's videos); the optimiser starts afresh.")] = None,
     set_: Annotated[list[str] | None, typer.Option(
         "--set", help="Override a config field, e.g. --set pair_gap_s=0.6 (see learned/config.py)."
     )] = None,
@@ -270,8 +273,11 @@ def train_depth(
     from learned.config import depth_config, parse_overrides
     from learned.train import train_depth as run
 
+    if init is not None and not init.is_file():
+        raise InputError(f"--init: no depth model at {init}")
     try:
         config = depth_config(preset, steps=steps, batch_size=batch_size, seed=seed,
+                              init=None if init is None else str(init),
                               **parse_overrides(set_ or []))
     except ValueError as err:
         raise InputError(str(err)) from err

@@ -73,6 +73,8 @@ class DepthConfig:
     """Scale warped intensity by (source ray length / target ray length)^2 (light at camera)."""
     seed: int = 0
     """Random seed (initialisation and sampling)."""
+    init: str = ""
+    """Depth model whose weights a new run starts from (fine-tuning); empty: random."""
 
     def lr_at(self, step: int) -> float:
         """Learning rate of training step `step` (counted from 0)."""

@@ -30,7 +30,7 @@ from learned.checkpoint import (
 from learned.config import DepthConfig
 from learned.frames import VIDEO_SUFFIXES, FrameSequence, open_sequence
 from learned.metrics import intrinsics_error, mre
-from learned.model import DepthModel, to_tensor
+from learned.model import DepthModel, load_depth_model, to_tensor
 
 log = logging.getLogger(__name__)
 CHECKPOINT = "checkpoint.safetensors"
@@ -124,6 +124,8 @@ def train_depth(data: list[Path], out: Path, config: DepthConfig, val: list[Path
     if tensors is not None:
         load_modules(tensors, {"depth": model.depth, "motion": model.motion}, path)
         load_optimizer(tensors, meta, optimizer)
+    elif config.init:
+        model.load_state_dict(load_depth_model(Path(config.init), config.preset).state_dict())
     (out / "config.json").write_text(json.dumps(config.to_dict(), indent=1) + "\n")
     metrics_log = (out / "metrics.jsonl").open("a")
     model.train()

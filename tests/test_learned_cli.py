@@ -243,6 +243,12 @@ def test_train_depth_with_missing_input(tmp_path):
     assert_clean_error(result, "nowhere")
 
 
+def test_train_depth_with_a_missing_init_model(tmp_path):
+    result = runner.invoke(app, ["train-depth", "--data", str(tmp_path), "--out",
+                                 str(tmp_path / "run"), "--init", str(tmp_path / "none.st")])
+    assert_clean_error(result, "--init", "none.st")
+
+
 def test_train_depth_refuses_to_resume_another_preset(tmp_path, tiny_checkpoint):
     """A run folder holding a 'fast' checkpoint, resumed with --preset paper."""
     run = tmp_path / "run"

@@ -220,6 +220,22 @@ def test_learning_rate_drop_can_be_added_to_a_run_before_it_happens(tmp_path, cl
                                  ["config"]) == later
 
 
+def test_a_new_run_can_start_from_a_trained_model(tmp_path, clip):
+    """--init: the run's first weights are the given model's (a step at learning rate 0 keeps
+    them); without it they are random."""
+    base = train_depth([clip], tmp_path / "base", replace(TINY, steps=2), progress=False)
+    export_weights(base, tmp_path / "base.safetensors")
+    init = load_depth_model(tmp_path / "base.safetensors")
+    config = replace(TINY, steps=1, learning_rate=0.0, seed=5)
+    for name, start in (("tuned", str(tmp_path / "base.safetensors")), ("fresh", "")):
+        train_depth([clip], tmp_path / name, replace(config, init=start), progress=False)
+        export_weights(tmp_path / name / "checkpoint.safetensors", tmp_path / f"{name}.st")
+        model = load_depth_model(tmp_path / f"{name}.st")
+        same = all(torch.equal(a, b) for a, b in zip(model.parameters(), init.parameters(),
+                                                     strict=True))
+        assert same == (name == "tuned")
+
+
 def test_exported_weights_drop_the_optimiser_and_predict_the_same(tmp_path, batch):
     model = DepthModel(TINY)
     optimizer = torch.optim.Adam(model.parameters(), lr=1e-3)
