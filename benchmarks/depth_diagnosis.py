@@ -11,7 +11,10 @@ On simulated procedures, for triplets every `--every` frames:
      predicted to true fx.
   3. For each number of coarse levels, the loss at the truth and its ratio when the truth is
      spoiled in the model's ways: depth compressed to gt^0.63 or gt^0.8, focal length x0.8,
-     rotation angles x0.65. Larger ratios: a loss that tells the truth apart more sharply.
+     rotation angles x0.65 (depth compressed about the target's median depth, so its scale
+     against the true translation is kept). Larger ratios: a loss that tells the truth apart
+     more sharply. The procedures must be rendered at the model's input size (the fast
+     preset's simulator output is).
 
     .venv/bin/python benchmarks/depth_diagnosis.py \
         --model learned/checkpoints/depth-fast.safetensors --data data/val
@@ -54,7 +57,10 @@ def loss_of(frames, depths, motions, K, config: DepthConfig, power: float = 1.0,
     K[:, 0, 0] *= focal
     K[:, 1, 1] *= focal
     motions = [(r * rotation, t, r_back * rotation, t_back) for r, t, r_back, t_back in motions]
-    depths = [d**power for d in depths]
+    # Compress about the target's median depth, so that the scale against the true
+    # translation stays right and only the shape changes.
+    median = depths[1][depths[1] > 0.01].median()
+    depths = [d**power * median ** (1 - power) for d in depths]
     region = torch.ones(1, 1, *frames.shape[-2:])
     torch.manual_seed(0)  # the same auto-mask tie-breaking everywhere
     return float(view_synthesis_loss(frames[:, 1], [frames[:, 0], frames[:, 2]], depths[1],

@@ -273,8 +273,6 @@ def train_depth(
     from learned.config import depth_config, parse_overrides
     from learned.train import train_depth as run
 
-    if init is not None and not init.is_file():
-        raise InputError(f"--init: no depth model at {init}")
     try:
         config = depth_config(preset, steps=steps, batch_size=batch_size, seed=seed,
                               init=None if init is None else str(init),

@@ -76,6 +76,14 @@ class DepthConfig:
     init: str = ""
     """Depth model whose weights a new run starts from (fine-tuning); empty: random."""
 
+    def __post_init__(self) -> None:
+        block = 2**self.coarse_levels
+        if self.coarse_levels < 0 or self.height % block or self.width % block \
+                or min(self.height, self.width) < 8 * block:
+            raise ValueError(f"coarse_levels={self.coarse_levels} needs a size divisible by "
+                             f"{block} and at least {8 * block} pixels, got "
+                             f"{self.height}x{self.width}")
+
     def lr_at(self, step: int) -> float:
         """Learning rate of training step `step` (counted from 0)."""
         dropped = 0 < self.lr_drop_step <= step

@@ -93,7 +93,8 @@ class SegmentNet(nn.Module):
             cin = cout
         self.convs = nn.Sequential(*layers)
         # CORAL (Sun et al. 2016): z -> A z + b on the pooled layer; identity until adapted.
-        # source_mean/source_cov: that layer's statistics on the synthetic training windows.
+        # source_mean/source_cov: that layer's statistics on the synthetic training windows
+        # (or on held-out synthetic windows: learned.coral.set_source).
         self.register_buffer("coral_matrix", torch.eye(cin))
         self.register_buffer("coral_offset", torch.zeros(cin))
         self.register_buffer("source_mean", torch.zeros(cin))

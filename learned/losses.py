@@ -31,11 +31,12 @@ def photometric_error(a: torch.Tensor, b: torch.Tensor, config: DepthConfig) -> 
 
 
 def _coarse_error(source: torch.Tensor, target: torch.Tensor, w: Warp, mask: torch.Tensor,
-                  level: int, config: DepthConfig) -> torch.Tensor:
+                  level: int, config: DepthConfig, full: torch.Tensor) -> torch.Tensor:
     """Photometric error at 1/2^level resolution, brought back to (B, 1, H, W).
 
     Target and source are block means; each block of the target samples the coarse source at
-    the mean of its pixels' landing points. Brightness is matched over fully usable blocks.
+    the mean of its pixels' landing points. Pixels of blocks that are not wholly usable (`mask`:
+    image region, no highlight, landing in the source) keep their full-resolution error `full`.
     """
     factor = 2**level
     source, target = F.avg_pool2d(source, factor), F.avg_pool2d(target, factor)
@@ -46,10 +47,11 @@ def _coarse_error(source: torch.Tensor, target: torch.Tensor, w: Warp, mask: tor
     image = F.grid_sample(source, grid, mode="bilinear", padding_mode="border",
                           align_corners=True)
     image = image * F.avg_pool2d(_light_factor(w, config), factor)
+    usable = F.avg_pool2d(mask.float(), factor) > 0.999
     if config.brightness_match:
-        image = match_brightness(image, target, F.avg_pool2d(mask.float(), factor) > 0.999)
+        image = match_brightness(image, target, usable)
     error = photometric_error(image, target, config)
-    return F.interpolate(error, size=mask.shape[-2:], mode="nearest")
+    return torch.where(_to_full(usable, factor), _to_full(error, factor), full)
 
 
 def _identity_error(source: torch.Tensor, target: torch.Tensor, config: DepthConfig
@@ -58,10 +60,14 @@ def _identity_error(source: torch.Tensor, target: torch.Tensor, config: DepthCon
     errors = [photometric_error(source, target, config)]
     for level in range(1, config.coarse_levels + 1):
         factor = 2**level
-        coarse = photometric_error(F.avg_pool2d(source, factor), F.avg_pool2d(target, factor),
-                                   config)
-        errors.append(F.interpolate(coarse, size=target.shape[-2:], mode="nearest"))
+        errors.append(_to_full(photometric_error(F.avg_pool2d(source, factor),
+                                                 F.avg_pool2d(target, factor), config), factor))
     return torch.stack(errors).mean(0)
+
+
+def _to_full(coarse: torch.Tensor, factor: int) -> torch.Tensor:
+    """Each coarse pixel repeated over its factor x factor block."""
+    return coarse.repeat_interleave(factor, dim=-2).repeat_interleave(factor, dim=-1)
 
 
 def match_brightness(warped: torch.Tensor, target: torch.Tensor, mask: torch.Tensor
@@ -132,7 +138,7 @@ def view_synthesis_loss(
         if config.brightness_match:
             image = match_brightness(image, target, mask)
         levels = [photometric_error(image, target, config)]
-        levels += [_coarse_error(source, target, w, mask, level, config)
+        levels += [_coarse_error(source, target, w, mask, level, config, levels[0])
                    for level in range(1, config.coarse_levels + 1)]
         error = torch.stack(levels).mean(0)
         errors.append(torch.where(compared, error, torch.full_like(error, 1e3)))

@@ -27,7 +27,7 @@ from learned.checkpoint import (
     read_checkpoint,
     save_checkpoint,
 )
-from learned.config import DepthConfig
+from learned.config import DEPTH_PRESETS, DepthConfig
 from learned.frames import VIDEO_SUFFIXES, FrameSequence, open_sequence
 from learned.metrics import intrinsics_error, mre
 from learned.model import DepthModel, load_depth_model, to_tensor
@@ -113,6 +113,8 @@ def train_depth(data: list[Path], out: Path, config: DepthConfig, val: list[Path
         config = _resumed_config(DepthConfig.from_dict(meta["config"]), config, step, path)
         log.info("resuming %s at step %d", path, step)
         elapsed = _drop_records_after(out / "metrics.jsonl", step)
+    elif config.init and not Path(config.init).is_file():
+        raise InputError(f"--init: no depth model at {config.init}")
     size = (config.height, config.width)
     sampler = TripletSampler([open_sequence(p, size) for p in expand_inputs(data)],
                              config.pair_gap_s)
@@ -171,20 +173,26 @@ def train_depth(data: list[Path], out: Path, config: DepthConfig, val: list[Path
 def _resumed_config(saved: DepthConfig, asked: DepthConfig, step: int, path: Path
                     ) -> DepthConfig:
     """The config a run resumed at `step` goes on with: its own, except --steps and a
-    learning-rate drop that has not happened yet, so that the resumed run trains exactly as a
-    fresh run with the final config would have."""
+    learning-rate drop asked for (one that differs from the preset's) that has not happened
+    yet, so that the resumed run trains exactly as a fresh run with the final config would."""
     if saved.preset != asked.preset:
         raise InputError(f"{path} holds a {saved.preset!r} run; use another --out for the "
                          f"{asked.preset!r} preset")
     config = replace(saved, steps=asked.steps)
-    if (asked.lr_drop_step, asked.lr_drop_factor) != (saved.lr_drop_step, saved.lr_drop_factor):
+    default = DEPTH_PRESETS[asked.preset]
+    drop = (asked.lr_drop_step, asked.lr_drop_factor)
+    if drop not in ((default.lr_drop_step, default.lr_drop_factor),
+                    (saved.lr_drop_step, saved.lr_drop_factor)):
         if 0 < saved.lr_drop_step < step or 0 < asked.lr_drop_step < step:
-            raise InputError(f"{path}: cannot change the learning-rate drop (step "
-                             f"{saved.lr_drop_step} -> {asked.lr_drop_step}) at step {step}: "
-                             "the drop must lie at or after the step the run resumes from")
+            raise InputError(
+                f"{path}: cannot change the learning-rate drop (x{saved.lr_drop_factor} from "
+                f"step {saved.lr_drop_step} -> x{asked.lr_drop_factor} from step "
+                f"{asked.lr_drop_step}) at step {step}: the drop must lie at or after the "
+                "step the run resumes from")
         config = replace(config, lr_drop_step=asked.lr_drop_step,
                          lr_drop_factor=asked.lr_drop_factor)
-    if replace(asked, steps=config.steps) != config:
+    if replace(asked, steps=config.steps, lr_drop_step=config.lr_drop_step,
+               lr_drop_factor=config.lr_drop_factor) != config:
         log.warning("%s: resuming with the run's own config; only --steps and a future "
                     "learning-rate drop are taken from the command line", path)
     return config

@@ -203,7 +203,6 @@ def test_transform_from_is_batched_and_composes():
     np.testing.assert_allclose((T[0] @ T[2]).numpy(), np.eye(4), atol=1e-12)
 
 
-
 def test_coarse_levels_follow_the_warp_of_the_analytic_scene(scene):
     """At 1/2 and 1/4 resolution the true pose still explains the target best: a 1.5x
     translation, which misregisters by more than half a pixel at full resolution (see above),
@@ -213,7 +212,8 @@ def test_coarse_levels_follow_the_warp_of_the_analytic_scene(scene):
     def coarse(T: torch.Tensor, level: int) -> float:
         w = warp(scene["source"], scene["depth"], T, intrinsics())
         keep = interior(w.valid)[..., 4:-4, 4:-4]
-        error = _coarse_error(scene["source"], scene["target"], w, mask, level, DepthConfig())
+        error = _coarse_error(scene["source"], scene["target"], w, mask, level, DepthConfig(),
+                              full=torch.zeros(1, 1, H, W))
         return float(error[..., 4:-4, 4:-4][keep].mean())
 
     for level in (1, 2):
@@ -239,7 +239,8 @@ def test_coarse_levels_reach_further_than_full_resolution():
         if level == 0:
             e = photometric_error(source, target, config)
         else:
-            e = _coarse_error(source, target, still, mask, level, config)
+            e = _coarse_error(source, target, still, mask, level, config,
+                              full=torch.zeros(1, 1, 128, 160))
         return float(e[..., 8:-8, 8:-8].mean())
 
     assert error(8, 0) == pytest.approx(error(1, 0), rel=0.02)
@@ -247,3 +248,46 @@ def test_coarse_levels_reach_further_than_full_resolution():
         b = 2**level
         assert error(b, level) / error(b // 2, level) == pytest.approx(math.sqrt(2), rel=0.05)
         assert error(2 * b, level) == pytest.approx(error(b, level), rel=0.02)
+
+
+def test_coarse_levels_keep_the_full_error_where_a_block_is_not_wholly_usable(scene):
+    """A pixel outside the usable mask makes its whole 4x4 block fall back to the
+    full-resolution error at level 2; other blocks get the coarse one."""
+    w = warp(scene["source"], scene["depth"], matrix(R_TRUE, 1.5 * T_TRUE), intrinsics())
+    mask = torch.ones(1, 1, H, W, dtype=torch.bool)
+    mask[..., 9, 13] = False  # in the block of rows 8-11, columns 12-15
+    full = torch.full((1, 1, H, W), 7.0)
+    error = _coarse_error(scene["source"], scene["target"], w, mask, 2, DepthConfig(), full)
+    assert (error[..., 8:12, 12:16] == 7.0).all()
+    assert (error[..., :8, :] != 7.0).all() and (error[..., 12:, :] != 7.0).all()
+
+
+def test_view_synthesis_loss_with_coarse_levels_prefers_the_true_motion(scene):
+    """The whole loss, one source, with coarse_levels = 2: the true pose beats a 1.5x
+    translation (the coarse path runs inside the per-pixel minimum and auto-masking)."""
+    from kornia.geometry.conversions import rotation_matrix_to_axis_angle
+
+    from learned.losses import view_synthesis_loss
+
+    _, source_depth, _ = render(R_TRUE, T_TRUE)
+    config = replace(DepthConfig(), height=H, width=W, coarse_levels=2)
+
+    def loss(t: np.ndarray) -> float:
+        T = matrix(R_TRUE, t)
+        back = torch.linalg.inv(T)
+        motion = (rotation_matrix_to_axis_angle(T[:, :3, :3]), T[:, :3, 3],
+                  rotation_matrix_to_axis_angle(back[:, :3, :3]), back[:, :3, 3])
+        torch.manual_seed(0)
+        return float(view_synthesis_loss(
+            scene["target"], [scene["source"]], scene["depth"], [as_t(source_depth)[None, None]],
+            [motion], intrinsics(), torch.ones(1, 1, H, W), config).photometric)
+
+    assert loss(1.5 * T_TRUE) > 2 * loss(T_TRUE)
+
+
+def test_coarse_levels_need_a_size_they_divide():
+    assert replace(DepthConfig(), coarse_levels=3).coarse_levels == 3  # 128x160
+    with pytest.raises(ValueError, match="divisible by 64"):
+        replace(DepthConfig(), coarse_levels=6)
+    with pytest.raises(ValueError, match="coarse_levels=-1"):
+        replace(DepthConfig(), coarse_levels=-1)

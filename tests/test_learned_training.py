@@ -210,6 +210,17 @@ def test_learning_rate_drop_can_be_added_to_a_run_before_it_happens(tmp_path, cl
     reference, _ = read_checkpoint(straight / "checkpoint.safetensors")
     assert DepthConfig.from_dict(meta["config"]) == dropped
     assert all(torch.equal(tensors[k], reference[k]) for k in reference)
+    # The drop is used: without it the weights differ.
+    train_depth([clip], tmp_path / "no-drop", replace(config, steps=4), progress=False)
+    undropped, _ = read_checkpoint(tmp_path / "no-drop" / "checkpoint.safetensors")
+    assert not all(torch.equal(undropped[k], reference[k]) for k in reference)
+    # A plain resume (no drop asked for) keeps the run's own drop, ahead of it or past it.
+    plain = tmp_path / "plain"
+    train_depth([clip], plain, replace(dropped, steps=2), progress=False)
+    for steps in (3, 5):  # resumed at step 2, then at step 3
+        train_depth([clip], plain, replace(config, steps=steps), progress=False)
+        saved = read_checkpoint(plain / "checkpoint.safetensors")[1]["config"]
+        assert DepthConfig.from_dict(saved) == replace(dropped, steps=steps)
     with pytest.raises(InputError, match="learning-rate drop"):  # the drop at 3 has happened
         train_depth([clip], resumed, replace(dropped, steps=6, lr_drop_step=5), progress=False)
     # A drop at the step a run stopped at has not happened yet: it may still move.
