@@ -5,7 +5,7 @@ forwards and backwards (ping-pong, so motion stays continuous), runs `c2d2 run` 
 child process, and prints seconds and frames/s per stage (from timing.json), end-to-end frames/s
 and the child's peak resident memory.
 
-    python benchmarks/bench_pipeline.py --procedure data/test/proc_0000 --frames 1800 9000
+    python benchmarks/bench_pipeline.py --procedure data/test/proc_0000 --frames 1800 18000
 """
 
 from __future__ import annotations

@@ -3,10 +3,10 @@
 For each fold model of a `c2d2 train-coverage` run, predicts its held-out procedures and splits
 the errors by the cosine between each camera's view axis and the lumen direction at its
 position: looking down the lumen (> 0.5), sideways, or back towards the rectum (< -0.5); and
-segments by their share of backward-looking frames.
+segments by their share of backward-looking frames. The data, config and fold split are the
+run's own (its record.json), so each fold model sees only the procedures it held out.
 
-    python benchmarks/coverage_by_view.py --run data/runs/coverage-fast \
-        --data data/cov-pink data/cov-dusk
+    python benchmarks/coverage_by_view.py --run data/runs/coverage-fast
 """
 
 from __future__ import annotations
@@ -18,10 +18,12 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from hybrid.coverage import Lumen
+from hybrid.coverage import DEFAULT_PAIR_CM, DELTA_PAIRS_CM, Lumen
 from hybrid.dataset import Procedure
+from learned.config import CoverageConfig
 from learned.coverage_nets import load_coverage_model
-from learned.coverage_train import fold_split, load_samples
+from learned.coverage_train import fold_split, load_samples, predict
+from learned.train import expand_inputs
 
 
 def view_cosine(proc: Procedure) -> np.ndarray:
@@ -37,30 +39,31 @@ def view_cosine(proc: Procedure) -> np.ndarray:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--run", type=Path, default=Path("data/runs/coverage-fast"))
-    parser.add_argument("--data", nargs="+", type=Path,
-                        default=[Path("data/cov-pink"), Path("data/cov-dusk")])
     parser.add_argument("--backward-share", type=float, default=0.2)
     args = parser.parse_args()
     torch.set_num_threads(1)
     record = json.loads((args.run / "record.json").read_text())
-    first = load_coverage_model(args.run / "fold-0.safetensors")
-    samples = load_samples(args.data, first.config, Path(record["depth_checkpoint"]["path"]))
+    config = CoverageConfig.from_dict(record["config"])
+    paths = expand_inputs([Path(p) for p in record["data"]])
+    samples = load_samples(paths, config, Path(record["depth_checkpoint"]["path"]))
+    if [s.name for s in samples] != record["procedures"]:
+        raise SystemExit(f"the procedures under {record['data']} are not the run's own")
+    pair = DELTA_PAIRS_CM.index(DEFAULT_PAIR_CM)
     groups = {"forward": [], "sideways": [], "backward": []}
     segments = []
-    for k, held in enumerate(fold_split(len(samples), first.config.folds, first.config.seed)):
+    for k, held in enumerate(fold_split(len(samples), config.folds, config.seed)):
         model = load_coverage_model(args.run / f"fold-{k}.safetensors")
         for i in held:
             s = samples[i]
-            cosine = view_cosine(Procedure.open(Path("data") / s.name))
-            pred, features = model.frame_outputs(s.inputs)
-            truth = s.frame_labels[:, 1]  # Δ = (1, 4)
+            cosine = view_cosine(Procedure.open(paths[i]))
+            pred, values = predict(model, s)
+            truth = s.frame_labels[:, pair]
             ok = np.isfinite(truth)
-            error = np.abs(pred[:, 1] - truth)
+            error = np.abs(pred[:, pair] - truth)
             groups["forward"] += error[ok & (cosine > 0.5)].tolist()
             groups["backward"] += error[ok & (cosine < -0.5)].tolist()
             groups["sideways"] += error[ok & (np.abs(cosine) <= 0.5)].tolist()
-            values = model.segment_outputs(features, s.segment_starts.tolist())
-            T = model.config.segment_frames
+            T = config.segment_frames
             for start, value, label in zip(s.segment_starts, values, s.segment_labels,
                                            strict=True):
                 segments.append((np.mean(cosine[start:start + T] < -0.5), value - label))

@@ -13,7 +13,8 @@ On simulated procedures, for triplets every `--every` frames:
      spoiled in the model's ways: depth compressed to gt^0.63 or gt^0.8, focal length x0.8,
      rotation angles x0.65 (depth compressed about the target's median depth, so its scale
      against the true translation is kept). Larger ratios: a loss that tells the truth apart
-     more sharply. The procedures must be rendered at the model's input size (the fast
+     more sharply; and the depth-consistency term (before its weight) for each. The
+     procedures must be rendered at the model's input size (the fast
      preset's simulator output is).
 
     .venv/bin/python benchmarks/depth_diagnosis.py \
@@ -52,7 +53,8 @@ def triplets(procs: list[Procedure], gap_s: float, every: int):
 
 
 def loss_of(frames, depths, motions, K, config: DepthConfig, power: float = 1.0,
-            focal: float = 1.0, rotation: float = 1.0) -> float:
+            focal: float = 1.0, rotation: float = 1.0) -> dict[str, float]:
+    """The loss terms (LossTerms.as_floats) at the truth spoiled as asked."""
     K = K.clone()
     K[:, 0, 0] *= focal
     K[:, 1, 1] *= focal
@@ -63,8 +65,8 @@ def loss_of(frames, depths, motions, K, config: DepthConfig, power: float = 1.0,
     depths = [d**power * median ** (1 - power) for d in depths]
     region = torch.ones(1, 1, *frames.shape[-2:])
     torch.manual_seed(0)  # the same auto-mask tie-breaking everywhere
-    return float(view_synthesis_loss(frames[:, 1], [frames[:, 0], frames[:, 2]], depths[1],
-                                     [depths[0], depths[2]], motions, K, region, config).total)
+    return view_synthesis_loss(frames[:, 1], [frames[:, 0], frames[:, 2]], depths[1],
+                               [depths[0], depths[2]], motions, K, region, config).as_floats()
 
 
 def systematic_errors(model, procs: list[Procedure], gap_s: float) -> dict[str, float]:
@@ -109,7 +111,7 @@ def main() -> None:
     procs = [p for d in args.data for p in list_procedures(d)]
     truth, predicted = [], []
     for _, frames, depths, motions, K in triplets(procs, model.config.pair_gap_s, args.every):
-        truth.append(loss_of(frames, depths, motions, K, model.config))
+        truth.append(loss_of(frames, depths, motions, K, model.config)["total"])
         with torch.no_grad():
             torch.manual_seed(0)
             region = torch.ones(1, 1, *frames.shape[-2:])
@@ -122,14 +124,18 @@ def main() -> None:
                                                      model.config.pair_gap_s).items()))
     for levels in args.levels:
         config = replace(model.config, coarse_levels=levels)
-        rows: dict[str, list[float]] = {"truth": [], **{k: [] for k in SPOILED}}
+        rows: dict[str, list[dict]] = {"truth": [], **{k: [] for k in SPOILED}}
         for _, frames, depths, motions, K in triplets(procs, config.pair_gap_s, args.every):
             rows["truth"].append(loss_of(frames, depths, motions, K, config))
             for name, spoil in SPOILED.items():
                 rows[name].append(loss_of(frames, depths, motions, K, config, **spoil))
-        base = np.mean(rows["truth"])
+        mean = {k: {term: np.mean([r[term] for r in v]) for term in v[0]}
+                for k, v in rows.items()}
+        base = mean["truth"]["total"]
         print(f"coarse_levels {levels}: truth {base:.4f}  " + "  ".join(
-            f"{k} x{np.mean(v) / base:.3f}" for k, v in rows.items() if k != "truth"))
+            f"{k} x{m['total'] / base:.3f}" for k, m in mean.items() if k != "truth"))
+        print("  its depth-consistency term: " + "  ".join(
+            f"{k} {m['depth_consistency']:.4f}" for k, m in mean.items()))
 
 
 if __name__ == "__main__":

@@ -433,11 +433,11 @@ def adapt(
     T, stride = models.coverage.config.segment_frames, models.coverage.config.segment_stride
 
     def features(paths: list[Path], work: Path) -> list:
-        out = []
+        resampled = []
         for k, path in enumerate(expand_inputs(paths)):
             per_frame, frames = video_features(path, work / str(k), config, models)
-            out.append(resample_features(per_frame, frames, T))
-        return out
+            resampled.append(resample_features(per_frame, frames, T))
+        return resampled
 
     with tempfile.TemporaryDirectory() as work:
         if source:

@@ -60,12 +60,6 @@ class RunConfig:
     """Coverage networks (None: the shipped fast ones)."""
     fps: float | None = None
     """Override the video's frame rate (image folders default to 30)."""
-
-    def __post_init__(self) -> None:
-        if self.fps is not None and not self.fps > 0:
-            raise InputError(f"the frame rate must be positive, got {self.fps}")
-        if not self.segment_seconds > 0:
-            raise InputError(f"segments must last a positive time, got {self.segment_seconds}")
     segment_seconds: float = 10.0
     """Segment length."""
     min_usable_fraction: float = 0.5
@@ -76,6 +70,12 @@ class RunConfig:
     posegraph: PoseGraphConfig = field(default_factory=PoseGraphConfig)
     reconstruction: ReconstructionConfig = field(default_factory=ReconstructionConfig)
     geometric: GeometricConfig = field(default_factory=GeometricConfig)
+
+    def __post_init__(self) -> None:
+        if self.fps is not None and not self.fps > 0:
+            raise InputError(f"the frame rate must be positive, got {self.fps}")
+        if not self.segment_seconds > 0:
+            raise InputError(f"segments must last a positive time, got {self.segment_seconds}")
 
 
 @dataclass

@@ -108,9 +108,9 @@ def reconstruct(depth: Sequence[np.ndarray], K: np.ndarray, poses: np.ndarray,
     metric = poses.copy()
     metric[:, :3, 3] *= scale
     scaled = ScaledDepth(depth, scale, region)
-    frames = ((scaled[i], None if rgb is None else rgb[i]) for i in range(len(poses)))
-    tsdf = TsdfConfig(voxel_size=config.voxel_cm, depth_max=config.depth_max_cm,
-                      stride=config.tsdf_stride)
-    mesh = fuse(frames, K, metric, tsdf, name=name, progress=progress)
+    fused = range(0, len(poses), config.tsdf_stride)  # frames not fused are not even read
+    frames = ((scaled[i], None if rgb is None else rgb[i]) for i in fused)
+    tsdf = TsdfConfig(voxel_size=config.voxel_cm, depth_max=config.depth_max_cm)
+    mesh = fuse(frames, K, metric[fused], tsdf, name=name, progress=progress)
     lumen = fit_lumen(metric, mesh.vertices, fps, config.lumen, name=name)
     return Reconstruction(metric, float(scale), mesh, lumen)

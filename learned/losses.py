@@ -46,7 +46,7 @@ def _coarse_error(source: torch.Tensor, target: torch.Tensor, w: Warp, mask: tor
                        dim=-1)
     image = F.grid_sample(source, grid, mode="bilinear", padding_mode="border",
                           align_corners=True)
-    image = image * F.avg_pool2d(_light_factor(w, config), factor)
+    image = _relit(image, F.avg_pool2d(w.ray_ratio, factor), config)
     usable = F.avg_pool2d(mask.float(), factor) > 0.999
     if config.brightness_match:
         image = match_brightness(image, target, usable)
@@ -134,7 +134,7 @@ def view_synthesis_loss(
         mask = compared & w.valid
         if config.mask_out_of_view:
             compared = mask
-        image = w.image * _light_factor(w, config)
+        image = _relit(w.image, w.ray_ratio, config)
         if config.brightness_match:
             image = match_brightness(image, target, mask)
         levels = [photometric_error(image, target, config)]
@@ -171,12 +171,12 @@ def view_synthesis_loss(
                      translation_cycle)
 
 
-def _light_factor(w: Warp, config: DepthConfig) -> torch.Tensor:
-    """(B, 1, H, W) factor on the warped source's intensity for the light at the camera: the
-    inverse-square correction if configured, else 1."""
+def _relit(image: torch.Tensor, ray_ratio: torch.Tensor, config: DepthConfig) -> torch.Tensor:
+    """Warped source intensity, corrected for the light at the camera if configured: times the
+    squared ratio of the ray lengths (source / target)."""
     if not config.inverse_square:
-        return torch.ones_like(w.ray_ratio)
-    return (w.ray_ratio.detach() ** 2).clamp(0.25, 4.0)
+        return image
+    return image * (ray_ratio.detach() ** 2).clamp(0.25, 4.0)
 
 
 def _depth_consistency(w: Warp, mask: torch.Tensor) -> torch.Tensor:

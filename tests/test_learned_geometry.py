@@ -272,7 +272,7 @@ def test_view_synthesis_loss_with_coarse_levels_prefers_the_true_motion(scene):
     _, source_depth, _ = render(R_TRUE, T_TRUE)
     config = replace(DepthConfig(), height=H, width=W, coarse_levels=2)
 
-    def loss(t: np.ndarray) -> float:
+    def loss(t: np.ndarray, config: DepthConfig = config) -> float:
         T = matrix(R_TRUE, t)
         back = torch.linalg.inv(T)
         motion = (rotation_matrix_to_axis_angle(T[:, :3, :3]), T[:, :3, 3],
@@ -283,6 +283,9 @@ def test_view_synthesis_loss_with_coarse_levels_prefers_the_true_motion(scene):
             [motion], intrinsics(), torch.ones(1, 1, H, W), config).photometric)
 
     assert loss(1.5 * T_TRUE) > 2 * loss(T_TRUE)
+    # ... and the coarse levels are in it: the same loss at full resolution only differs.
+    assert loss(T_TRUE) != pytest.approx(loss(T_TRUE, replace(config, coarse_levels=0)),
+                                         rel=0.05)
 
 
 def test_coarse_levels_need_a_size_they_divide():
