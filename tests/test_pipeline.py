@@ -46,7 +46,7 @@ CSV_COLUMNS = ["index", "start_frame", "stop_frame", "start_s", "end_s", "learne
 
 # Tolerances of |branch - truth| per segment, each about twice the branch's mean absolute error
 # on held-out simulated procedures (learned segment MAE 0.12-0.155, docs/coverage.md; geometric
-# with learned inputs on short procedures 0.074, docs/geometric.md): they catch a gross failure
+# with learned inputs on short procedures 0.053, docs/geometric.md): they catch a gross failure
 # (wrong segments, lost scale, a broken checkpoint: a random coverage model errs by 0.26-0.39),
 # not a small loss of accuracy. Measured with the shipped checkpoints: seed 0 (used here) truth
 # 0.866, 0.754, learned 0.884, 0.821, geometric 0.881, 0.766; seeds 3 and 6 stay within 0.10 on
