@@ -8,7 +8,7 @@ Modes (each: pose graph where learned, TSDF, lumen fit, geometric coverage):
   learned       the shipped depth model's depth, K and relative poses (gaps 1, 2, 4, 8),
                 smoothed by the pose graph, scale from the typical-radius rule
   learned-local the same inputs, each segment reconstructed on its own window (the segment
-                and 5 s either side: hybrid.segment_geometry), as `c2d2 run` does
+                and half a segment either side: hybrid.segment_geometry), as `c2d2 run` does
 Prints MAE, bias and 3-class accuracy per mode, the lumen fit errors, and the frames/s of the
 pose graph + TSDF + coverage; writes a JSON and a scatter plot.
 
@@ -26,7 +26,7 @@ import numpy as np
 import torch
 
 from fusion.posegraph import PoseGraphConfig, smooth_trajectory
-from hybrid.coverage import Lumen
+from hybrid.coverage import DEFAULT_PAIR_CM, Lumen, pair_key
 from hybrid.dataset import Procedure
 from hybrid.geometric_coverage import GeometricConfig, geometric_coverage
 from hybrid.reconstruction import ReconstructionConfig, ScaledDepth, reconstruct
@@ -77,13 +77,18 @@ def run_procedure(proc: Procedure, model, graph: PoseGraphConfig, config: Recons
                         **relative_poses(model, seq, tuple(g for g in graph.skips if g > 1))}
             learned.update(depth=list(inferred.depth), K=np.median(inferred.K_pairs, axis=0),
                            network_s=time.time() - tic)
-            tic = time.time()
+            graph_tic = time.time()
             learned["poses"] = smooth_trajectory(relative, graph, name=str(proc.path)).poses
+            learned["graph_s"] = time.time() - graph_tic
+        if mode.startswith("learned"):  # both learned modes: pose graph included, networks not
+            tic = time.time() - learned["graph_s"]
         if mode == "learned-local":
+            frames = proc.coverage.segment_frames
             local = local_segment_coverage(learned["depth"], learned["K"], learned["poses"],
-                                           300, 150, None, config, geometric,
+                                           frames, frames // 2, None, config, geometric,
                                            proc.camera.fps, proc.path.name)
-            pred = [np.nan if s.segment.coverage["1-4"] is None else s.segment.coverage["1-4"]
+            key = pair_key(DEFAULT_PAIR_CM)
+            pred = [np.nan if s.segment.coverage[key] is None else s.segment.coverage[key]
                     for s in local]
             out[mode] = {"pred": pred, "seconds": time.time() - tic, "network_seconds": 0.0,
                          "frames": proc.num_frames, "centreline_cm": np.nan,
