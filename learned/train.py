@@ -104,8 +104,10 @@ def train_depth(data: list[Path], out: Path, config: DepthConfig, val: list[Path
                 progress: bool = True) -> Path:
     """Train (or resume) and return the checkpoint path."""
     out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
     path = out / CHECKPOINT
+    if not path.is_file() and config.init and not Path(config.init).is_file():
+        raise InputError(f"--init: no depth model at {config.init}")
+    out.mkdir(parents=True, exist_ok=True)
     step, tensors, meta, elapsed = 0, None, None, 0.0
     if path.is_file():  # resume with the run's own config, see _resumed_config
         tensors, meta = read_checkpoint(path)
@@ -113,8 +115,6 @@ def train_depth(data: list[Path], out: Path, config: DepthConfig, val: list[Path
         config = _resumed_config(DepthConfig.from_dict(meta["config"]), config, step, path)
         log.info("resuming %s at step %d", path, step)
         elapsed = _drop_records_after(out / "metrics.jsonl", step)
-    elif config.init and not Path(config.init).is_file():
-        raise InputError(f"--init: no depth model at {config.init}")
     size = (config.height, config.width)
     sampler = TripletSampler([open_sequence(p, size) for p in expand_inputs(data)],
                              config.pair_gap_s)
