@@ -140,7 +140,7 @@ def run(
                                                              "(default: shipped).")] = None,
     insertion: Annotated[bool, typer.Option(help="The video is an insertion, not a withdrawal "
                                             "(the look-ahead band lies where the camera is "
-                                            "going).")] = False,
+                                            "going; both branches).")] = False,
     segment_seconds: Annotated[float, typer.Option(help="Segment length.")] = 10.0,
 ):
     """The whole pipeline on one video: coverage.json/.csv, mesh.ply, maps/, report.html."""

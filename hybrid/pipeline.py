@@ -46,6 +46,7 @@ from learned.coverage_nets import (
 from learned.frames import Crop, FrameSequence
 from learned.infer import aggregate_intrinsics, predicted_depth, relative_poses
 from learned.model import DepthModel, load_depth_model, to_tensor
+from learned.travel import no_travel, travel_features
 
 log = logging.getLogger(__name__)
 
@@ -127,6 +128,14 @@ class _Run:
     def segment_frames(self) -> int:
         return max(2, round(self.config.segment_seconds * self.ingested.fps))
 
+    @property
+    def travel_gap(self) -> int:
+        """The coverage model's travel gap in this video's frames (0: no travel input)."""
+        config = self.models.coverage.config
+        if not config.travel_gap:
+            return 0
+        return max(1, round(config.travel_gap * self.segment_frames / config.segment_frames))
+
     # --- stages ---------------------------------------------------------------------------
 
     def ingest(self) -> None:
@@ -147,7 +156,8 @@ class _Run:
         depth = NpyWriter(self.path(W.DEPTH), (seq.num_frames, *self.size), np.float16)
         model = self.models.depth
         predicted_depth(model, seq, progress=self.progress, out=depth)
-        gaps = tuple(g for g in self.config.posegraph.skips if g < seq.num_frames)
+        gaps = tuple(g for g in sorted({*self.config.posegraph.skips, self.travel_gap} - {0})
+                     if g < seq.num_frames)
         relative = relative_poses(model, seq, gaps, progress=self.progress)
         np.savez(self.path(W.RELATIVE + ".partial.npz"),
                  **{f"gap{g}": r for g, r in relative.items()})
@@ -189,14 +199,29 @@ class _Run:
             "segments": [vars(s.segment) for s in segments],
             "errors": {str(s.segment.index): s.error for s in segments if s.error}})
 
+    def travel(self) -> np.ndarray:
+        """(N, travel_size): each frame's direction of travel, the coverage model's input."""
+        count, gap = len(self.depth()), self.travel_gap
+        if not gap:
+            return no_travel(count)
+        with np.load(self.path(W.RELATIVE)) as data:
+            if f"gap{gap}" not in data.files:
+                raise InputError(f"{self.out}: its depth stage has no gap-{gap} relative poses, "
+                                 f"which this coverage model's travel input needs; run into a "
+                                 f"new --out folder")
+            relative = data[f"gap{gap}"]
+        return travel_features(relative, count, self.config.reconstruction.lumen.withdrawal,
+                               name=str(self.path(W.RELATIVE)))
+
     def frame_outputs(self) -> tuple[np.ndarray, np.ndarray]:
         """Per-frame coverage (N, 3) and features (N, F), computed in chunks."""
         model = self.models.coverage
-        depth, region = self.depth(), self.region
+        depth, region, travel = self.depth(), self.region, self.travel()
         size = (model.config.height, model.config.width)
         outputs = [model.frame_outputs(normalise_depth(
             np.asarray(depth[start:start + 512], np.float32), region, size,
-            name=self.source.name, by_median=model.config.median_normalise))
+            name=self.source.name, by_median=model.config.median_normalise),
+            travel[start:start + 512])
             for start in range(0, len(depth), 512)]
         return (np.concatenate([o[0] for o in outputs]),
                 np.concatenate([o[1] for o in outputs]))

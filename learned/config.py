@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from dataclasses import asdict, dataclass, fields, replace
 
+from learned.travel import TRAVEL_SIZE
+
 
 @dataclass(frozen=True)
 class DepthConfig:
@@ -70,7 +72,11 @@ class DepthConfig:
     specular_mask: bool = True
     """Ignore near-white specular highlights."""
     inverse_square: bool = False
-    """Scale warped intensity by (source ray length / target ray length)^2 (light at camera)."""
+    """Relight the warped source for the light at the camera: its intensity times (source ray
+    length / target ray length)^(2 / display_gamma), with gradients to depth and motion, so
+    that the light's falloff is a depth cue where parallax is weak."""
+    display_gamma: float = 2.2
+    """Gamma of the video's encoding (the inverse-square law holds for linear intensity)."""
     seed: int = 0
     """Random seed (initialisation and sampling)."""
     init: str = ""
@@ -83,6 +89,8 @@ class DepthConfig:
             raise ValueError(f"coarse_levels={self.coarse_levels} needs a size divisible by "
                              f"{block} and at least {8 * block} pixels, got "
                              f"{self.height}x{self.width}")
+        if not self.display_gamma > 0:
+            raise ValueError(f"display_gamma must be positive, got {self.display_gamma}")
 
     def lr_at(self, step: int) -> float:
         """Learning rate of training step `step` (counted from 0)."""
@@ -164,6 +172,10 @@ class CoverageConfig:
     median_normalise: bool = True
     """Divide each depth map by its median (the rule for depth of unknown scale); False feeds
     log depth as is, an ablation that only makes sense with metric (true) depth."""
+    travel_gap: int = 8
+    """Frames between the motion network's pair that gives each frame's direction of travel,
+    an input of the per-frame network besides the depth (learned.travel); 0: depth only, as
+    in the paper."""
     segment_frames: int = 300
     """Frames per segment (T)."""
     segment_stride: int = 30
@@ -194,6 +206,11 @@ class CoverageConfig:
     """Random seed (initialisation, sampling, fold split)."""
 
     @property
+    def travel_size(self) -> int:
+        """Per-frame travel values fed to the per-frame network (0 when travel_gap is 0)."""
+        return TRAVEL_SIZE if self.travel_gap else 0
+
+    @property
     def feature_size(self) -> int:
         """F: length of a per-frame feature vector."""
         return self.frame_channels[-1]
@@ -205,6 +222,7 @@ class CoverageConfig:
     def from_dict(cls, data: dict) -> CoverageConfig:
         known = {f.name for f in fields(cls)}
         values = {k: tuple(v) if isinstance(v, list) else v for k, v in data.items() if k in known}
+        values.setdefault("travel_gap", 0)  # saved before the travel input: depth only
         return cls(**values)
 
 
@@ -224,6 +242,9 @@ def coverage_config(preset: str, **overrides) -> CoverageConfig:
         raise ValueError(f"unknown preset {preset!r}; choose one of {sorted(COVERAGE_PRESETS)}")
     config = replace(COVERAGE_PRESETS[preset],
                      **{k: v for k, v in overrides.items() if v is not None})
+    if config.travel_gap < 0:
+        raise ValueError(f"travel_gap must be 0 (off) or a positive frame gap, got "
+                         f"{config.travel_gap}")
     if config.input_depth not in ("predicted", "true"):
         raise ValueError(f"input_depth must be 'predicted' or 'true', got {config.input_depth!r}")
     return config

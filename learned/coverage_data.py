@@ -1,7 +1,8 @@
 """Inputs and labels of the coverage networks, per simulated procedure, cached on disk.
 
 The per-frame input is the depth network's output on the procedure's RGB (what inference sees),
-or the simulator's depth for the ablation, normalised by `normalise_depth`. Labels: the
+or the simulator's depth for the ablation, normalised by `normalise_depth`, and the direction of
+travel from the motion network (learned.travel; the procedures are withdrawals). Labels: the
 per-frame coverage of coverage.json for the three Δ pairs, the default-pair coverage of
 overlapping training windows (computed here with the exact ground truth) and of the
 back-to-back segments of coverage.json (used for evaluation).
@@ -25,8 +26,9 @@ from hybrid.types import InputError
 from learned.config import CoverageConfig
 from learned.coverage_nets import normalise_depth
 from learned.frames import FrameSequence, open_sequence
-from learned.infer import predicted_depth
+from learned.infer import predicted_depth, relative_poses
 from learned.model import DepthModel
+from learned.travel import no_travel, travel_features
 
 
 @dataclass
@@ -36,6 +38,8 @@ class ProcedureSamples:
     name: str
     inputs: np.ndarray
     """(N, 1, h, w) float16 normalised depth."""
+    travel: np.ndarray
+    """(N, travel_size) float32 direction of travel and log relative speed."""
     frame_labels: np.ndarray
     """(N, 3) float32 per-frame coverage per Δ pair, NaN where undefined."""
     window_starts: np.ndarray
@@ -75,12 +79,18 @@ def procedure_samples(path: Path, config: CoverageConfig, depth_model: DepthMode
     else:
         name = f"input-{depth_tag}-{size}.npy"
     inputs = _cached(cache / name, lambda: _inputs(proc, config, depth_model, progress))
+    if config.travel_gap:
+        travel = _cached(cache / f"travel-{depth_tag}-{config.travel_gap}.npy",
+                         lambda: _travel(proc, config.travel_gap, depth_model, progress))
+    else:
+        travel = no_travel(len(inputs))
     windows = _cached(cache / f"windows-{T}-{stride}.npy",
                       lambda: _window_labels(proc, T, stride, progress))
     labels = np.array([[np.nan if v is None else v for v in truth.per_frame[pair_key(p)]]
                        for p in truth.delta_pairs], dtype=np.float32).T
     return ProcedureSamples(
-        name=f"{proc.path.parent.name}/{proc.path.name}", inputs=inputs, frame_labels=labels,
+        name=f"{proc.path.parent.name}/{proc.path.name}", inputs=inputs, travel=travel,
+        frame_labels=labels,
         window_starts=windows[:, 0].astype(int), window_labels=windows[:, 1],
         segment_starts=np.array([s.start for s in truth.segments], dtype=int),
         segment_labels=truth.segment_labels())
@@ -106,6 +116,15 @@ def _inputs(proc: Procedure, config: CoverageConfig, depth_model: DepthModel | N
     size = (depth_model.config.height, depth_model.config.width)
     return video_inputs(open_sequence(proc.path, size), depth_model, config,
                         progress).astype(np.float16)
+
+
+def _travel(proc: Procedure, gap: int, depth_model: DepthModel | None, progress: bool
+            ) -> np.ndarray:
+    if depth_model is None:
+        raise InputError("the travel input needs a depth model (its motion network)")
+    seq = open_sequence(proc.path, (depth_model.config.height, depth_model.config.width))
+    relative = relative_poses(depth_model, seq, (gap,), progress=progress)[gap]
+    return travel_features(relative, seq.num_frames, name=str(proc.path))
 
 
 def _window_labels(proc: Procedure, frames: int, stride: int, progress: bool) -> np.ndarray:

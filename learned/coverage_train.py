@@ -49,17 +49,35 @@ def _optimise(loss: torch.Tensor, optimizer: torch.optim.Optimizer, schedule) ->
     return loss.item()
 
 
+def mirrored(depth: torch.Tensor, travel: torch.Tensor, flips: torch.Tensor
+             ) -> tuple[torch.Tensor, torch.Tensor]:
+    """Depth (B, 1, h, w) and travel (B, 4 or 0) of the mirrored views: flips (B, 2) bool
+    mirrors left-right (image x; travel x negated) and up-down (image y; travel y negated)."""
+    depth = torch.where(flips[:, 0, None, None, None], depth.flip(-1), depth)
+    depth = torch.where(flips[:, 1, None, None, None], depth.flip(-2), depth)
+    if travel.shape[1]:  # columns x, y, z, speed
+        signs = torch.ones_like(travel)
+        signs[:, :2] = 1.0 - 2.0 * flips.to(travel.dtype)
+        travel = travel * signs
+    return depth, travel
+
+
 def train_frame_net(model: CoverageModel, samples: list[ProcedureSamples], log,
                     progress: bool = False) -> None:
     """Stage 1: L2 loss on the per-frame coverage of the three Δ pairs (undefined ones masked).
 
-    Depth maps are flipped left-right and up-down at random: a mirrored colon is covered alike.
+    Depth maps are flipped left-right and up-down at random, the travel direction's x and y
+    with them: a mirrored colon is covered alike.
     """
     config = model.config
     inputs = np.concatenate([s.inputs for s in samples])
+    travel = np.concatenate([s.travel for s in samples])
+    if travel.shape[1] != config.travel_size:
+        raise InputError(f"the samples carry {travel.shape[1]} travel values per frame, the "
+                         f"model takes {config.travel_size} (travel_gap {config.travel_gap})")
     labels = np.concatenate([s.frame_labels for s in samples])
     keep = np.isfinite(labels).any(axis=1)
-    inputs, labels = inputs[keep], labels[keep]
+    inputs, travel, labels = inputs[keep], travel[keep], labels[keep]
     steps_per_epoch = max(1, len(inputs) // config.frame_batch)
     total = steps_per_epoch * config.frame_epochs
     optimizer = torch.optim.AdamW(model.frame.parameters(), config.frame_lr,
@@ -72,13 +90,12 @@ def train_frame_net(model: CoverageModel, samples: list[ProcedureSamples], log,
         if step % steps_per_epoch == 0:
             order = rng.permutation(len(inputs))
         ids = np.sort(order[(step % steps_per_epoch) * config.frame_batch:][:config.frame_batch])
-        x = torch.from_numpy(inputs[ids].astype(np.float32))
-        flips = torch.from_numpy(rng.random((len(ids), 2)) < 0.5)
-        x = torch.where(flips[:, 0, None, None, None], x.flip(-1), x)
-        x = torch.where(flips[:, 1, None, None, None], x.flip(-2), x)
+        x, m = mirrored(torch.from_numpy(inputs[ids].astype(np.float32)),
+                        torch.from_numpy(travel[ids]),
+                        torch.from_numpy(rng.random((len(ids), 2)) < 0.5))
         y = torch.from_numpy(labels[ids])
         ok = torch.isfinite(y)
-        running.append(_optimise((model.frame(x)[ok] - y[ok]).square().mean(), optimizer,
+        running.append(_optimise((model.frame(x, m)[ok] - y[ok]).square().mean(), optimizer,
                                  schedule))
         bar.update(1)
         if (step + 1) % 100 == 0 or step + 1 == total:
@@ -149,14 +166,14 @@ def fit_model(samples: list[ProcedureSamples], config: CoverageConfig, log,
     torch.manual_seed(config.seed)
     model = CoverageModel(config)
     train_frame_net(model, samples, log, progress)
-    features = [model.frame_outputs(s.inputs)[1] for s in samples]
+    features = [model.frame_outputs(s.inputs, s.travel)[1] for s in samples]
     train_segment_net(model, samples, features, log, progress)
     return model
 
 
 def predict(model: CoverageModel, samples: ProcedureSamples) -> tuple[np.ndarray, np.ndarray]:
     """Per-frame coverage (N, 3) and coverage of the procedure's back-to-back segments (S,)."""
-    frame, features = model.frame_outputs(samples.inputs)
+    frame, features = model.frame_outputs(samples.inputs, samples.travel)
     return frame, model.segment_outputs(features, samples.segment_starts.tolist())
 
 
@@ -175,7 +192,7 @@ def load_samples(data: list[Path], config: CoverageConfig, depth_checkpoint: Pat
     """Samples of every simulated procedure under the given paths."""
     paths = expand_inputs(data)
     depth_model = None
-    if config.input_depth == "predicted":
+    if config.input_depth == "predicted" or config.travel_gap:
         depth_model = load_depth_model(depth_checkpoint)
     tag = file_tag(depth_checkpoint)
     return [procedure_samples(p, config, depth_model, tag, progress)

@@ -173,10 +173,10 @@ def view_synthesis_loss(
 
 def _relit(image: torch.Tensor, ray_ratio: torch.Tensor, config: DepthConfig) -> torch.Tensor:
     """Warped source intensity, corrected for the light at the camera if configured: times the
-    squared ratio of the ray lengths (source / target)."""
+    squared ratio of the ray lengths (source / target), in the video's gamma encoding."""
     if not config.inverse_square:
         return image
-    return image * (ray_ratio.detach() ** 2).clamp(0.25, 4.0)
+    return image * ray_ratio.clamp(0.5, 2.0) ** (2.0 / config.display_gamma)
 
 
 def _depth_consistency(w: Warp, mask: torch.Tensor) -> torch.Tensor:

@@ -26,7 +26,7 @@ from learned.coverage_nets import (
     normalise_depth,
     resample_features,
 )
-from learned.coverage_train import fold_split, train_frame_net, train_segment_net
+from learned.coverage_train import fold_split, mirrored, train_frame_net, train_segment_net
 from learned.model import DepthModel
 
 pytestmark = pytest.mark.usefixtures("one_thread")
@@ -34,38 +34,51 @@ pytestmark = pytest.mark.usefixtures("one_thread")
 SMALL = replace(COVERAGE_PRESETS["fast"], height=16, width=20, frame_channels=(4, 8, 8, 8, 8),
                 segment_frames=20, segment_stride=5, segment_channels=(4, 4, 4, 4, 4, 4),
                 segment_kernels=(1, 3, 3, 3, 3, 3), segment_strides=(1, 1, 1, 1, 1, 1),
-                frame_epochs=8, frame_batch=16, segment_epochs=150, segment_batch=8)
+                frame_epochs=30, frame_batch=16, frame_lr=1e-2, segment_epochs=150,
+                segment_batch=8, segment_lr=1e-2)
 """The fast coverage preset shrunk for tests (its preset name stays 'fast')."""
 
 
 def toy_samples(count: int = 3, frames: int = 60, seed: int = 0) -> list[ProcedureSamples]:
-    """Random smooth inputs whose per-frame labels are a function of the input, and window
-    labels the mean of their frames' first label."""
+    """Random smooth inputs whose per-frame labels are a function of the input and of the
+    travel (0 where the camera moves forwards, z > 0, as when it looks back during a
+    withdrawal), and window labels the mean of their frames' first label."""
     rng = np.random.default_rng(seed)
     out = []
     for k in range(count):
         level = np.cumsum(rng.normal(0, 0.3, frames))
         inputs = (level[:, None, None, None] * np.linspace(-1, 1, SMALL.width)
                   + rng.normal(0, 0.05, (frames, 1, SMALL.height, SMALL.width)))
+        travel = toy_travel(frames, rng)
         slope = np.abs(level)
         labels = np.stack([1 / (1 + slope), 1 / (1 + 0.5 * slope), 1 / (1 + 0.2 * slope)], 1)
+        labels *= (travel[:, 2:3] < 0)
         starts = np.arange(0, frames - SMALL.segment_frames + 1, SMALL.segment_stride)
         window = np.array([labels[s:s + SMALL.segment_frames, 0].mean() for s in starts])
-        out.append(ProcedureSamples(f"toy/{k}", inputs.astype(np.float16),
+        out.append(ProcedureSamples(f"toy/{k}", inputs.astype(np.float16), travel,
                                     labels.astype(np.float32), starts, window, starts[:1],
                                     window[:1]))
     return out
 
 
+def toy_travel(frames: int, rng: np.random.Generator) -> np.ndarray:
+    """(N, 4) unit directions, mostly backwards (-z) with forward (+z) stretches, and speed."""
+    forward = np.cumsum(rng.normal(0, 1, frames)) > 1.0
+    direction = np.column_stack([rng.normal(0, 0.2, (frames, 2)),
+                                 np.where(forward, 1.0, -1.0)])
+    direction /= np.linalg.norm(direction, axis=1, keepdims=True)
+    return np.column_stack([direction, rng.normal(0, 0.3, frames)]).astype(np.float32)
+
+
 def frame_loss(model: CoverageModel, samples: list[ProcedureSamples]) -> float:
-    pred = np.concatenate([model.frame_outputs(s.inputs)[0] for s in samples])
+    pred = np.concatenate([model.frame_outputs(s.inputs, s.travel)[0] for s in samples])
     return float(np.mean((pred - np.concatenate([s.frame_labels for s in samples])) ** 2))
 
 
 def segment_loss(model: CoverageModel, samples: list[ProcedureSamples]) -> float:
     errors = []
     for s in samples:
-        features = model.frame_outputs(s.inputs)[1]
+        features = model.frame_outputs(s.inputs, s.travel)[1]
         errors += list(model.segment_outputs(features, s.window_starts.tolist())
                        - s.window_labels)
     return float(np.mean(np.square(errors)))
@@ -96,12 +109,15 @@ def test_segment_net_has_six_convolutions_pooling_and_one_output():
 def test_paper_per_frame_net_is_resnet50_with_2048_features():
     config = COVERAGE_PRESETS["paper"]
     model = CoverageModel(config)
-    # ResNet-50 without its classifier has 23,508,032 parameters; ours takes one input
-    # channel (7x7x64 weights instead of 7x7x3x64) and ends in 3 outputs.
-    assert count_parameters(model.frame.encoder) == 23_508_032 - 7 * 7 * 2 * 64
+    # ResNet-50 without its classifier has 23,508,032 parameters; ours takes the depth and
+    # 4 travel planes (7x7x5x64 stem weights instead of 7x7x3x64) and ends in 3 outputs.
+    assert count_parameters(model.frame.encoder) == 23_508_032 + 7 * 7 * 2 * 64
     assert model.frame.head.in_features == 2048 and model.frame.head.out_features == 3
-    features = model.frame.eval().features(torch.zeros(1, 1, 64, 64))
-    assert features.shape == (1, 2048)
+    travel = torch.tensor([[0.0, 0.6, -0.8, 0.5], [0.0, 0.6, 0.8, 0.5]])
+    features = model.frame.eval().features(torch.zeros(2, 1, 64, 64), travel)
+    assert features.shape == (2, 2048) and not torch.allclose(features[0], features[1])
+    depth_only = CoverageModel(replace(config, travel_gap=0))  # the paper's: depth alone
+    assert count_parameters(depth_only.frame.encoder) == 23_508_032 - 7 * 7 * 2 * 64
 
 
 def test_normalised_input_is_log_depth_over_its_median():
@@ -130,6 +146,39 @@ def test_normalised_input_rejects_nan_depth():
 # --- training -----------------------------------------------------------------------------
 
 
+def test_per_frame_net_learns_from_the_travel_what_depth_cannot_tell():
+    """The toy labels are 0 wherever the camera moves forwards, whatever its depth: only the
+    travel input tells those frames apart."""
+    samples = toy_samples(count=4, seed=3)
+    forward = np.concatenate([s.travel[:, 2] > 0 for s in samples])
+    assert forward.mean() > 0.15  # both kinds of frame are there
+    means = {}
+    for gap in (8, 0):
+        torch.manual_seed(0)
+        model = CoverageModel(replace(SMALL, travel_gap=gap))
+        given = [replace(s, travel=s.travel[:, :model.config.travel_size]) for s in samples]
+        train_frame_net(model, given, lambda e: None)
+        pred = np.concatenate([model.frame_outputs(s.inputs, s.travel)[0][:, 0] for s in given])
+        means[gap] = pred[forward].mean(), pred[~forward].mean()
+    (fwd, back), (fwd_depth_only, back_depth_only) = means[8], means[0]
+    # With the travel, the forward frames fall towards their label 0 and apart from the rest.
+    assert fwd < 0.5 * fwd_depth_only
+    assert back - fwd > 2 * (back_depth_only - fwd_depth_only)
+
+
+def test_mirroring_negates_the_travel_along_the_flipped_axis():
+    depth = torch.arange(6.0).reshape(1, 1, 2, 3).repeat(3, 1, 1, 1)
+    travel = torch.tensor([[0.6, 0.0, -0.8, 0.3]]).repeat(3, 1)
+    flips = torch.tensor([[True, False], [False, True], [False, False]])
+    x, m = mirrored(depth, travel, flips)
+    assert torch.equal(x[0, 0], depth[0, 0].flip(-1)) and torch.equal(x[1, 0], depth[1, 0].flip(-2))
+    assert torch.equal(x[2], depth[2])
+    assert m[0].tolist() == pytest.approx([-0.6, 0.0, -0.8, 0.3])
+    assert m[1].tolist() == pytest.approx([0.6, -0.0, -0.8, 0.3])
+    assert torch.equal(m[2], travel[2])
+    assert mirrored(depth, torch.zeros(3, 0), flips)[1].shape == (3, 0)
+
+
 def test_training_reduces_both_losses_on_a_tiny_set():
     samples = toy_samples()
     torch.manual_seed(0)
@@ -139,7 +188,7 @@ def test_training_reduces_both_losses_on_a_tiny_set():
     train_frame_net(model, samples, log.append)
     after = frame_loss(model, samples)
     assert after < 0.5 * before, (before, after)
-    features = [model.frame_outputs(s.inputs)[1] for s in samples]
+    features = [model.frame_outputs(s.inputs, s.travel)[1] for s in samples]
     seg_before = segment_loss(model, samples)
     train_segment_net(model, samples, features, log.append)
     seg_after = segment_loss(model, samples)
@@ -229,7 +278,9 @@ def test_features_of_the_wrong_size_are_an_input_error():
     with pytest.raises(InputError, match=r"\(N, 8\)"):
         model.segment_outputs(np.zeros((40, 2048), np.float32), [0])
     with pytest.raises(InputError, match="normalised depth"):
-        model.frame_outputs(np.zeros((2, 1, 64, 80), np.float32))
+        model.frame_outputs(np.zeros((2, 1, 64, 80), np.float32), np.zeros((2, 4), np.float32))
+    with pytest.raises(InputError, match=r"travel input must be \(N, 4\)"):
+        model.frame_outputs(np.zeros((2, 1, 16, 20), np.float32), np.zeros((2, 0), np.float32))
 
 
 def test_a_model_of_another_preset_is_an_input_error(tmp_path):
