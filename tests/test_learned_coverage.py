@@ -15,7 +15,7 @@ from torch import nn
 
 from hybrid.cli import app
 from hybrid.types import InputError
-from learned.config import COVERAGE_PRESETS, coverage_config, parse_overrides
+from learned.config import COVERAGE_PRESETS, CoverageConfig, coverage_config, parse_overrides
 from learned.coral import adapt, coral_transform, set_source
 from learned.coverage_data import ProcedureSamples
 from learned.coverage_nets import (
@@ -385,3 +385,14 @@ def test_segments_of_another_frame_rate_are_resampled_to_the_window():
     assert np.bincount(first.astype(int)).tolist() == [5] * 60  # each frame 5 times
     # At the network's own rate nothing changes.
     assert np.array_equal(resample_features(features, 300, 300), features)
+
+
+def test_a_depth_only_model_from_before_the_travel_input_still_loads(tmp_path):
+    old = replace(SMALL, travel_gap=0)
+    path = tmp_path / "old.safetensors"
+    CoverageModel(old).save(path)
+    saved = old.to_dict()
+    del saved["travel_gap"]  # configs written before the field existed
+    assert CoverageConfig.from_dict(saved) == old
+    model = load_coverage_model(path)
+    assert model.config.travel_size == 0 and model.frame.encoder.stem[0].in_channels == 1
