@@ -130,11 +130,12 @@ class _Run:
 
     @property
     def travel_gap(self) -> int:
-        """The coverage model's travel gap in this video's frames (0: no travel input)."""
+        """The coverage model's travel gap, the same time in this video's frames (0: no
+        travel input)."""
         config = self.models.coverage.config
         if not config.travel_gap:
             return 0
-        return max(1, round(config.travel_gap * self.segment_frames / config.segment_frames))
+        return max(1, round(config.travel_gap * self.ingested.fps / config.frame_rate))
 
     # --- stages ---------------------------------------------------------------------------
 
@@ -205,11 +206,10 @@ class _Run:
         if not gap:
             return no_travel(count)
         with np.load(self.path(W.RELATIVE)) as data:
-            if f"gap{gap}" not in data.files:
-                raise InputError(f"{self.out}: its depth stage has no gap-{gap} relative poses, "
-                                 f"which this coverage model's travel input needs; run into a "
-                                 f"new --out folder")
-            relative = data[f"gap{gap}"]
+            relative = data[f"gap{gap}"] if f"gap{gap}" in data.files else None
+        if relative is None:  # a depth stage run for a model without this gap
+            relative = relative_poses(self.models.depth, self.sequence(), (gap,),
+                                      progress=self.progress)[gap]
         return travel_features(relative, count, self.config.reconstruction.lumen.withdrawal,
                                name=str(self.path(W.RELATIVE)))
 

@@ -173,9 +173,12 @@ class CoverageConfig:
     """Divide each depth map by its median (the rule for depth of unknown scale); False feeds
     log depth as is, an ablation that only makes sense with metric (true) depth."""
     travel_gap: int = 8
-    """Frames between the motion network's pair that gives each frame's direction of travel,
-    an input of the per-frame network besides the depth (learned.travel); 0: depth only, as
-    in the paper."""
+    """Frames (at frame_rate) between the motion network's pair that gives each frame's
+    direction of travel, an input of the per-frame network besides the depth
+    (learned.travel); 0: depth only, as in the paper."""
+    frame_rate: float = 30.0
+    """Frame rate of the training videos: a segment of segment_frames lasts
+    segment_frames / frame_rate seconds; other videos' travel gap is scaled by time."""
     segment_frames: int = 300
     """Frames per segment (T)."""
     segment_stride: int = 30
@@ -204,6 +207,13 @@ class CoverageConfig:
     """Cross-validation folds, split by procedure (0 or 1: no cross-validation)."""
     seed: int = 0
     """Random seed (initialisation, sampling, fold split)."""
+
+    def __post_init__(self) -> None:
+        if self.travel_gap < 0:
+            raise ValueError(f"travel_gap must be 0 (off) or a positive frame gap, got "
+                             f"{self.travel_gap}")
+        if not self.frame_rate > 0:
+            raise ValueError(f"frame_rate must be positive, got {self.frame_rate}")
 
     @property
     def travel_size(self) -> int:
@@ -242,9 +252,6 @@ def coverage_config(preset: str, **overrides) -> CoverageConfig:
         raise ValueError(f"unknown preset {preset!r}; choose one of {sorted(COVERAGE_PRESETS)}")
     config = replace(COVERAGE_PRESETS[preset],
                      **{k: v for k, v in overrides.items() if v is not None})
-    if config.travel_gap < 0:
-        raise ValueError(f"travel_gap must be 0 (off) or a positive frame gap, got "
-                         f"{config.travel_gap}")
     if config.input_depth not in ("predicted", "true"):
         raise ValueError(f"input_depth must be 'predicted' or 'true', got {config.input_depth!r}")
     return config

@@ -72,6 +72,9 @@ def procedure_samples(path: Path, config: CoverageConfig, depth_model: DepthMode
     if truth.segment_frames != T:
         raise InputError(f"{proc.path}: its segments are {truth.segment_frames} frames, the "
                          f"coverage networks' are {T}")
+    if proc.camera.fps != config.frame_rate:
+        raise InputError(f"{proc.path}: {proc.camera.fps:g} fps, the coverage networks train "
+                         f"on {config.frame_rate:g} fps")
     cache = proc.path / "cache"
     size = f"{config.height}x{config.width}" + ("" if config.median_normalise else "-log")
     if config.input_depth == "true":
@@ -80,8 +83,9 @@ def procedure_samples(path: Path, config: CoverageConfig, depth_model: DepthMode
         name = f"input-{depth_tag}-{size}.npy"
     inputs = _cached(cache / name, lambda: _inputs(proc, config, depth_model, progress))
     if config.travel_gap:
-        travel = _cached(cache / f"travel-{depth_tag}-{config.travel_gap}.npy",
-                         lambda: _travel(proc, config.travel_gap, depth_model, progress))
+        relative = _cached(cache / f"relative-{depth_tag}-{config.travel_gap}.npy",
+                           lambda: _relative(proc, config.travel_gap, depth_model, progress))
+        travel = travel_features(relative, len(inputs), name=str(proc.path))
     else:
         travel = no_travel(len(inputs))
     windows = _cached(cache / f"windows-{T}-{stride}.npy",
@@ -118,13 +122,13 @@ def _inputs(proc: Procedure, config: CoverageConfig, depth_model: DepthModel | N
                         progress).astype(np.float16)
 
 
-def _travel(proc: Procedure, gap: int, depth_model: DepthModel | None, progress: bool
-            ) -> np.ndarray:
+def _relative(proc: Procedure, gap: int, depth_model: DepthModel | None, progress: bool
+              ) -> np.ndarray:
+    """(N - gap, 4, 4) relative poses of the frame pairs (t, t + gap), from the motion net."""
     if depth_model is None:
         raise InputError("the travel input needs a depth model (its motion network)")
     seq = open_sequence(proc.path, (depth_model.config.height, depth_model.config.width))
-    relative = relative_poses(depth_model, seq, (gap,), progress=progress)[gap]
-    return travel_features(relative, seq.num_frames, name=str(proc.path))
+    return relative_poses(depth_model, seq, (gap,), progress=progress)[gap]
 
 
 def _window_labels(proc: Procedure, frames: int, stride: int, progress: bool) -> np.ndarray:

@@ -15,7 +15,8 @@ from torch import nn
 
 from hybrid.cli import app
 from hybrid.types import InputError
-from learned.config import COVERAGE_PRESETS, CoverageConfig, coverage_config, parse_overrides
+from learned.checkpoint import save_checkpoint
+from learned.config import COVERAGE_PRESETS, coverage_config, parse_overrides
 from learned.coral import adapt, coral_transform, set_source
 from learned.coverage_data import ProcedureSamples
 from learned.coverage_nets import (
@@ -168,13 +169,13 @@ def test_per_frame_net_learns_from_the_travel_what_depth_cannot_tell():
 
 def test_mirroring_negates_the_travel_along_the_flipped_axis():
     depth = torch.arange(6.0).reshape(1, 1, 2, 3).repeat(3, 1, 1, 1)
-    travel = torch.tensor([[0.6, 0.0, -0.8, 0.3]]).repeat(3, 1)
+    travel = torch.tensor([[0.6, 0.3, -0.7, 0.3]]).repeat(3, 1)
     flips = torch.tensor([[True, False], [False, True], [False, False]])
     x, m = mirrored(depth, travel, flips)
     assert torch.equal(x[0, 0], depth[0, 0].flip(-1)) and torch.equal(x[1, 0], depth[1, 0].flip(-2))
     assert torch.equal(x[2], depth[2])
-    assert m[0].tolist() == pytest.approx([-0.6, 0.0, -0.8, 0.3])
-    assert m[1].tolist() == pytest.approx([0.6, -0.0, -0.8, 0.3])
+    assert m[0].tolist() == pytest.approx([-0.6, 0.3, -0.7, 0.3])
+    assert m[1].tolist() == pytest.approx([0.6, -0.3, -0.7, 0.3])
     assert torch.equal(m[2], travel[2])
     assert mirrored(depth, torch.zeros(3, 0), flips)[1].shape == (3, 0)
 
@@ -389,10 +390,12 @@ def test_segments_of_another_frame_rate_are_resampled_to_the_window():
 
 def test_a_depth_only_model_from_before_the_travel_input_still_loads(tmp_path):
     old = replace(SMALL, travel_gap=0)
-    path = tmp_path / "old.safetensors"
-    CoverageModel(old).save(path)
+    model = CoverageModel(old)
     saved = old.to_dict()
-    del saved["travel_gap"]  # configs written before the field existed
-    assert CoverageConfig.from_dict(saved) == old
-    model = load_coverage_model(path)
-    assert model.config.travel_size == 0 and model.frame.encoder.stem[0].in_channels == 1
+    del saved["travel_gap"], saved["frame_rate"]  # configs written before the fields existed
+    path = tmp_path / "old.safetensors"
+    save_checkpoint(path, {"frame": model.frame, "segment": model.segment}, saved, 0,
+                    kind="coverage")
+    loaded = load_coverage_model(path)
+    assert loaded.config == old
+    assert loaded.config.travel_size == 0 and loaded.frame.encoder.stem[0].in_channels == 1

@@ -45,13 +45,14 @@ CSV_COLUMNS = ["index", "start_frame", "stop_frame", "start_s", "end_s", "learne
 3-class labels, agreement, the mean coverage, deficient, assessable (and its usable fraction)."""
 
 # Tolerances of |branch - truth| per segment, each about twice the branch's mean absolute error
-# on held-out simulated procedures (learned segment MAE 0.12-0.155, docs/coverage.md; geometric
+# on held-out simulated procedures (learned segment MAE 0.09-0.105, docs/coverage.md; geometric
 # with learned inputs on short procedures 0.053, docs/geometric.md): they catch a gross failure
-# (wrong segments, lost scale, a broken checkpoint: a random coverage model errs by 0.26-0.39),
-# not a small loss of accuracy. Measured with the shipped checkpoints: seed 0 (used here) truth
-# 0.866, 0.754, learned 0.884, 0.821, geometric 0.881, 0.766; seeds 3 and 6 stay within 0.10 on
-# both branches too. Longer, excursion-heavy procedures fail far more (docs/geometric.md).
-LEARNED_TOLERANCE = 0.25
+# (wrong segments, lost scale, a broken checkpoint), not a small loss of accuracy. Measured with
+# the shipped checkpoints (run_video on SIM with seeds 0, 3 and 6): seed 0 (used here)
+# truth 0.866, 0.754, learned 0.816, 0.751, geometric 0.862, 0.762; seeds 3 and 6 stay within
+# 0.15 on both branches too. Longer, excursion-heavy procedures fail far more
+# (docs/geometric.md, docs/pipeline.md).
+LEARNED_TOLERANCE = 0.2
 GEOMETRIC_TOLERANCE = 0.15
 
 
@@ -225,6 +226,24 @@ def test_rerun_skips_every_stage(pipeline_run, procedure):
     assert messages == [f"{stage}: done before, skipped" for stage in STAGES]
     assert snapshot(out) == before
     assert result["warnings"] == []
+
+
+def test_learned_stage_computes_a_travel_gap_its_depth_stage_lacks(pipeline_run, procedure,
+                                                                   tmp_path):
+    """A depth stage run for a model with another travel gap: the learned stage computes the
+    gap it needs (8 frames at 30 fps is 3 at this video's 10 fps) and gets the same result."""
+    out, _ = pipeline_run
+    work = tmp_path / "work"
+    shutil.copytree(out, work)
+    with np.load(work / W.RELATIVE) as data:
+        assert "gap3" in data.files
+        kept = {k: data[k] for k in data.files if k != "gap3"}
+    np.savez(work / W.RELATIVE, **kept)
+    for name in (W.LEARNED, W.REPORT):
+        (work / name).unlink()
+    run_video(procedure.path, work, RunConfig(), progress=False, echo=lambda _: None)
+    learned = json.loads((work / W.LEARNED).read_text())
+    assert learned == json.loads((out / W.LEARNED).read_text())
 
 
 # --- resuming a work directory ---------------------------------------------------------------

@@ -39,6 +39,24 @@ def test_looking_ahead_and_looking_back_travel_in_opposite_directions():
     assert np.allclose(np.abs(side[:, :3]), [1, 0, 0], atol=1e-6)
 
 
+def test_the_direction_is_in_the_first_camera_s_axes_on_a_turning_path():
+    """A camera yawing 3° per frame while it moves: the displacement to t+g, seen in camera
+    t's axes (R_t^T (c_{t+g} - c_t)), not in the world's or in camera t+g's."""
+    frames, gap = 30, 5
+    poses = np.tile(np.eye(4), (frames, 1, 1))
+    yaw = Rotation.from_euler("y", 3.0 * np.arange(frames)[:, None], degrees=True)
+    poses[:, :3, :3] = yaw.as_matrix()
+    poses[:, :3, 3] = np.column_stack([0.05 * np.arange(frames) ** 1.5, np.zeros(frames),
+                                       -0.1 * np.arange(frames)])
+    out = travel_features(relative_from(poses, gap), frames)
+    moved = poses[gap:, :3, 3] - poses[:-gap, :3, 3]
+    expected = np.einsum("nji,nj->ni", poses[:-gap, :3, :3], moved)
+    expected /= np.linalg.norm(expected, axis=1, keepdims=True)
+    np.testing.assert_allclose(out[:-gap, :3], expected, atol=1e-6)
+    world = moved / np.linalg.norm(moved, axis=1, keepdims=True)
+    assert np.abs(out[:-gap, :3] - world).max() > 0.1  # the rotation matters here
+
+
 def test_an_insertion_flips_the_direction_so_that_looking_ahead_means_the_same():
     poses = straight_path(30, Rotation.from_euler("y", 180, degrees=True), np.full(30, 0.1))
     relative = relative_from(poses, 2)
