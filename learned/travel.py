@@ -1,5 +1,5 @@
 """Direction of travel in each camera's own axes, from the motion network: the per-frame cue
-that tells a camera looking down the lumen from one looking back at where it has been.
+that tells a camera looking down the lumen from one looking back towards the rectum.
 
 A depth image looking towards the cecum and one looking back towards the rectum are alike,
 but during a withdrawal the first moves backwards (-z) and the second forwards (+z). The
