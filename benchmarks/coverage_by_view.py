@@ -2,7 +2,8 @@
 
 For each fold model of a `c2d2 train-coverage` run, predicts its held-out procedures and splits
 the errors by the cosine between each camera's view axis and the lumen direction at its
-position: looking down the lumen (> 0.5), sideways, or back towards the rectum (< -0.5); and
+position: looking down the lumen (> 0.5), sideways, or back towards the rectum (< -0.5) (with
+the share of each group's frames whose travel input has z > 0, for a travel-aware run); and
 segments by their share of backward-looking frames. The data, config and fold split are the
 run's own (its record.json), so each fold model sees only the procedures it held out.
 
@@ -50,6 +51,7 @@ def main() -> None:
         raise SystemExit(f"the procedures under {record['data']} are not the run's own")
     pair = DELTA_PAIRS_CM.index(DEFAULT_PAIR_CM)
     groups = {"forward": [], "sideways": [], "backward": []}
+    moving_along_view = {name: [] for name in groups}  # travel z > 0 (with a travel input)
     segments = []
     for k, held in enumerate(fold_split(len(samples), config.folds, config.seed)):
         model = load_coverage_model(args.run / f"fold-{k}.safetensors")
@@ -60,17 +62,22 @@ def main() -> None:
             truth = s.frame_labels[:, pair]
             ok = np.isfinite(truth)
             error = np.abs(pred[:, pair] - truth)
-            groups["forward"] += error[ok & (cosine > 0.5)].tolist()
-            groups["backward"] += error[ok & (cosine < -0.5)].tolist()
-            groups["sideways"] += error[ok & (np.abs(cosine) <= 0.5)].tolist()
+            picks = {"forward": cosine > 0.5, "backward": cosine < -0.5,
+                     "sideways": np.abs(cosine) <= 0.5}
+            for name, pick in picks.items():
+                groups[name] += error[ok & pick].tolist()
+                if config.travel_size:
+                    moving_along_view[name] += (s.travel[ok & pick, 2] > 0).tolist()
             T = config.segment_frames
             for start, value, label in zip(s.segment_starts, values, s.segment_labels,
                                            strict=True):
                 segments.append((np.mean(cosine[start:start + T] < -0.5), value - label))
     total = sum(len(v) for v in groups.values())
     for name, errors in groups.items():
+        along = (f"  travel z > 0 for {np.mean(moving_along_view[name]):.0%}"
+                 if moving_along_view[name] else "")
         print(f"{name:9s} frames {len(errors):6d} ({len(errors) / total:.0%})  per-frame MAE "
-              f"(1,4) {np.mean(errors):.3f}")
+              f"(1,4) {np.mean(errors):.3f}{along}")
     share, error = np.array(segments).T
     ok = np.isfinite(error)
     many = ok & (share > args.backward_share)
