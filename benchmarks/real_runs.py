@@ -5,8 +5,10 @@
 2. CVC-ClinicDB: the 612 frames split into their 29 sequences (start frames from the data's
    README); each sequence is one image folder, played as one 10-s segment (its frame rate set to
    frames / 10 s: the frames are not adjacent, so this is a stress test).
-Prints per run the segments' learned and geometric coverage and the branches' 3-class
-agreement, and writes a JSON summary.
+Prints per run the segments' learned and geometric coverage, the branches' 3-class agreement
+and the share of frames the motion network has moving along their view (travel z > 0 before
+`--insertion` negates it: a withdrawal looking back, or an advance looking ahead), and writes a
+JSON summary.
 
     python benchmarks/real_runs.py --data ../shared/data --out /tmp/c2d2-real
 """
@@ -18,6 +20,13 @@ import json
 import subprocess
 import sys
 from pathlib import Path
+
+import numpy as np
+
+from hybrid import workdir as W
+from learned.checkpoints import SHIPPED_COVERAGE
+from learned.coverage_nets import load_coverage_model
+from learned.travel import travel_features
 
 CVC_STARTS = (1, 26, 51, 68, 79, 104, 127, 152, 178, 200, 206, 228, 253, 278, 298, 318, 343, 364,
               384, 409, 429, 448, 467, 479, 504, 529, 547, 572, 592)
@@ -36,7 +45,17 @@ def run(source: Path, out: Path, *extra: str) -> dict:
                                             "agree", "deficient", "assessable")}
                          for s in table["segments"]],
             "intrinsics": {k: json.loads((out / "intrinsics.json").read_text())[k]
-                           for k in ("fx", "fy", "cx", "cy", "width", "height")}}
+                           for k in ("fx", "fy", "cx", "cy", "width", "height")},
+            "moving_along_view": moving_along_view(out)}
+
+
+def moving_along_view(out: Path) -> float:
+    """Share of a run's frames whose travel (the shipped coverage model's gap) has z > 0."""
+    ingested = json.loads((out / W.INGEST).read_text())
+    gap = load_coverage_model(SHIPPED_COVERAGE).config.travel_frames(ingested["fps"])
+    with np.load(out / W.RELATIVE) as data:
+        relative = data[f"gap{gap}"]
+    return float(np.mean(travel_features(relative, ingested["frames"])[:, 2] > 0))
 
 
 def cvc_sequences(frames: Path, work: Path) -> list[Path]:
@@ -76,7 +95,8 @@ def main() -> None:
         fmt = [None if v is None else round(v, 2) for v in geometric]
         print(f"{name:16s} agreement {r['agreement']}  learned {[round(v, 2) for v in learned]}"
               f"  geometric {fmt}  K fx {r['intrinsics']['fx']:.0f} "
-              f"({r['intrinsics']['width']}x{r['intrinsics']['height']})")
+              f"({r['intrinsics']['width']}x{r['intrinsics']['height']})  moving along the "
+              f"view {r['moving_along_view']:.0%}")
 
 
 if __name__ == "__main__":

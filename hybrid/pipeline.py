@@ -130,12 +130,8 @@ class _Run:
 
     @property
     def travel_gap(self) -> int:
-        """The coverage model's travel gap, the same time in this video's frames (0: no
-        travel input)."""
-        config = self.models.coverage.config
-        if not config.travel_gap:
-            return 0
-        return max(1, round(config.travel_gap * self.ingested.fps / config.frame_rate))
+        """The coverage model's travel gap in this video's frames (0: no travel input)."""
+        return self.models.coverage.config.travel_frames(self.ingested.fps)
 
     # --- stages ---------------------------------------------------------------------------
 
@@ -200,9 +196,10 @@ class _Run:
             "segments": [vars(s.segment) for s in segments],
             "errors": {str(s.segment.index): s.error for s in segments if s.error}})
 
-    def travel(self) -> np.ndarray:
-        """(N, travel_size): each frame's direction of travel, the coverage model's input."""
-        count, gap = len(self.depth()), self.travel_gap
+    def travel(self, count: int) -> np.ndarray:
+        """(N, travel_size): each of the N frames' direction of travel, the coverage model's
+        input."""
+        gap = self.travel_gap
         if not gap:
             return no_travel(count)
         with np.load(self.path(W.RELATIVE)) as data:
@@ -216,7 +213,8 @@ class _Run:
     def frame_outputs(self) -> tuple[np.ndarray, np.ndarray]:
         """Per-frame coverage (N, 3) and features (N, F), computed in chunks."""
         model = self.models.coverage
-        depth, region, travel = self.depth(), self.region, self.travel()
+        depth, region = self.depth(), self.region
+        travel = self.travel(len(depth))
         size = (model.config.height, model.config.width)
         outputs = [model.frame_outputs(normalise_depth(
             np.asarray(depth[start:start + 512], np.float32), region, size,

@@ -220,6 +220,10 @@ class CoverageConfig:
         """Per-frame travel values fed to the per-frame network (0 when travel_gap is 0)."""
         return TRAVEL_SIZE if self.travel_gap else 0
 
+    def travel_frames(self, fps: float) -> int:
+        """The travel gap, the same time in frames of a video at `fps` (0: no travel input)."""
+        return max(1, round(self.travel_gap * fps / self.frame_rate)) if self.travel_gap else 0
+
     @property
     def feature_size(self) -> int:
         """F: length of a per-frame feature vector."""
