@@ -42,7 +42,7 @@ def simulate(
     seed: Annotated[int, typer.Option(help="Random seed; same seed, same output.")] = 0,
     preset: Annotated[str, typer.Option(help="Image size: fast (128x160) or paper (320x384).")
                       ] = "fast",
-    style: Annotated[str, typer.Option(help="Appearance style: pink or dusk.")] = "pink",
+    style: Annotated[str, typer.Option(help="Appearance style: pink, dusk or nbi.")] = "pink",
     length_cm: Annotated[float | None, typer.Option(help="Colon length in cm (default 120).")
                          ] = None,
     max_frames: Annotated[int | None, typer.Option(min=1, help="Stop each withdrawal after N "

@@ -60,6 +60,12 @@ STYLES: dict[str, Style] = {
                   vessel_rgb=(0.40, 0.16, 0.08), vessel_strength=0.45, vessels_per_cm2=0.5,
                   light_gain=0.7, ambient=0.01, specular=1.0, shininess=80.0, vignetting=0.55,
                   blur_sigma_px=1.0, noise_std=0.03, gamma=1.9),
+    # Narrow-band-imaging-like: teal mucosa, dense dark vessels, dim and noisy. Neither the
+    # depth nor the coverage networks are trained on it: the shifted domain for CORAL.
+    "nbi": Style("nbi", base_rgb=(0.30, 0.50, 0.48), variation=0.20,
+                 vessel_rgb=(0.20, 0.10, 0.06), vessel_strength=0.75, vessels_per_cm2=1.6,
+                 light_gain=0.6, ambient=0.02, specular=0.6, shininess=50.0, vignetting=0.5,
+                 blur_sigma_px=0.8, noise_std=0.035, gamma=2.2),
 }
 """Appearance styles, for simulator-to-simulator domain-shift studies."""
 
