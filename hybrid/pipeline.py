@@ -36,6 +36,7 @@ from hybrid.npyio import NpyRows, NpyWriter
 from hybrid.reconstruction import ReconstructionConfig, reconstruct
 from hybrid.segment_geometry import local_segment_coverage, save_maps
 from hybrid.types import Camera, InputError
+from learned.coverage_data import file_tag
 from learned.coverage_eval import CLASS_EDGES
 from learned.coverage_nets import (
     CoverageModel,
@@ -286,8 +287,9 @@ def run_video(source: Path, out: Path, config: RunConfig = RunConfig(),
     that could not run. Trailing frames that do not fill a segment get no verdict (a note).
     """
     source, out = Path(source), Path(out)
+    models = models or Models.load(config)  # a missing checkpoint is named before _prepare
     _prepare(out, config, source)
-    run = _Run(source, out, config, models or Models.load(config), region, progress)
+    run = _Run(source, out, config, models, region, progress)
     stages: list[tuple[str, Callable[[], None], list[str]]] = [
         ("ingest", run.ingest, [W.FRAMES, W.INGEST, W.REGION]),
         ("depth", run.depth_stage, [W.DEPTH, W.RELATIVE, W.INTRINSICS]),
@@ -331,6 +333,15 @@ def run_video(source: Path, out: Path, config: RunConfig = RunConfig(),
     return {"timing": timing, "warnings": warnings}
 
 
+def _checkpoint_tags(config: RunConfig) -> dict[str, str]:
+    """SHA-256 prefixes of the model files a run reads: a file replaced at the same path is
+    another model."""
+    from learned.checkpoints import SHIPPED_COVERAGE, SHIPPED_DEPTH
+
+    return {"depth": file_tag(Path(config.depth_checkpoint or SHIPPED_DEPTH)),
+            "coverage": file_tag(Path(config.coverage_checkpoint or SHIPPED_COVERAGE))}
+
+
 def _prepare(out: Path, config: RunConfig, source: Path) -> None:
     """Create the work directory; refuse one that holds a run of another video or config."""
     try:
@@ -345,7 +356,7 @@ def _prepare(out: Path, config: RunConfig, source: Path) -> None:
     identity = {"path": str(source.resolve()),
                 "size": source.stat().st_size if source.is_file() else None}
     resolved = {"config": json.loads(json.dumps(asdict(config))), "source": identity,
-                "c2d2_version": __version__}
+                "checkpoints": _checkpoint_tags(config), "c2d2_version": __version__}
     if saved.is_file():
         previous = json.loads(saved.read_text())
         if previous.get("source") != identity:
@@ -354,5 +365,10 @@ def _prepare(out: Path, config: RunConfig, source: Path) -> None:
         if previous.get("config") != resolved["config"]:
             raise InputError(f"{out} holds a run made with another configuration; use another "
                              f"--out or delete it to start again")
+        if previous.get("checkpoints") != resolved["checkpoints"]:
+            raise InputError(f"{out} holds a run made with other model checkpoints (SHA-256 "
+                             f"prefixes {previous.get('checkpoints')}, now "
+                             f"{resolved['checkpoints']}); use another --out or delete it to "
+                             f"start again")
     elif source.exists():
         W.write_json(saved, resolved)
