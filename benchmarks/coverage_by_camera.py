@@ -1,0 +1,68 @@
+"""Per-procedure error of a coverage model against its camera's field of view.
+
+Each simulated procedure has its own camera (horizontal field of view 90-130 degrees). The
+per-frame network sees a depth image, not the field of view, so a camera wider than it
+assumes sees more of the wall than it predicts. Prints, per procedure (sorted by field of
+view), the per-frame bias and MAE for the (1, 4) cm pair, the per-segment bias, and how often
+the sign of the travel input's z (moving along the view or against it) agrees with the true
+motion's; then the correlation of field of view with the per-frame bias.
+
+    .venv/bin/python benchmarks/coverage_by_camera.py \
+        --data data/cov-pink/proc_0012 ... [--model MODEL]
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import numpy as np
+
+from hybrid.dataset import Procedure
+from learned.checkpoints import SHIPPED_COVERAGE, SHIPPED_DEPTH
+from learned.coverage_nets import load_coverage_model
+from learned.coverage_train import load_samples, predict
+from learned.train import expand_inputs
+
+
+def travel_agreement(poses: np.ndarray, travel: np.ndarray, gap: int) -> float:
+    """Share of frames whose travel z has the sign of the true displacement's z over `gap`
+    frames in the camera's axes (poses camera-to-world); NaN without a travel input."""
+    if not gap:
+        return float("nan")
+    moved = np.einsum("nji,nj->ni", poses[:-gap, :3, :3], poses[gap:, :3, 3] - poses[:-gap, :3, 3])
+    return float(np.mean((moved[:, 2] > 0) == (travel[:-gap, 2] > 0)))
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--data", type=Path, nargs="+", required=True)
+    parser.add_argument("--model", type=Path, default=SHIPPED_COVERAGE)
+    parser.add_argument("--depth-checkpoint", type=Path, default=SHIPPED_DEPTH)
+    args = parser.parse_args()
+    model = load_coverage_model(args.model)
+    paths = expand_inputs(args.data)
+    pair = 1  # the (1, 4) cm pair, the default
+    rows = []
+    for path, samples in zip(paths, load_samples(paths, model.config, args.depth_checkpoint),
+                             strict=True):
+        camera = Procedure.open(path).camera
+        fov = 2 * np.degrees(np.arctan(camera.width / 2 / camera.fx))
+        frame, segment = predict(model, samples)
+        labelled = np.isfinite(samples.frame_labels[:, pair])
+        error = frame[labelled, pair] - samples.frame_labels[labelled, pair]
+        rows.append((fov, error.mean(), np.abs(error).mean(),
+                     np.nanmean(segment - samples.segment_labels),
+                     travel_agreement(Procedure.open(path).poses, samples.travel,
+                                      model.config.travel_frames(camera.fps)), samples.name))
+    print("field of view (deg)  frame bias  frame MAE  segment bias  travel z sign  procedure")
+    for fov, bias, mae, segment_bias, agree, name in sorted(rows):
+        print(f"{fov:19.0f}  {bias:+10.3f}  {mae:9.3f}  {segment_bias:+12.3f}  {agree:13.2f}  "
+              f"{name}")
+    fovs, biases = np.array([r[0] for r in rows]), np.array([r[1] for r in rows])
+    print(f"correlation of field of view with frame bias: {np.corrcoef(fovs, biases)[0, 1]:.2f}"
+          f"; mean |frame bias| {np.abs(biases).mean():.3f}")
+
+
+if __name__ == "__main__":
+    main()
