@@ -343,7 +343,8 @@ def _checkpoint_tags(config: RunConfig) -> dict[str, str]:
 
 
 def _prepare(out: Path, config: RunConfig, source: Path) -> None:
-    """Create the work directory; refuse one that holds a run of another video or config."""
+    """Create the work directory; refuse one that holds a run of another video, config or
+    model files."""
     try:
         out.mkdir(parents=True, exist_ok=True)
         probe = out / ".write-test"

@@ -8,6 +8,7 @@ ignore the border. `Crop` maps intrinsics back to the input's own pixels.
 
 from __future__ import annotations
 
+import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -64,16 +65,25 @@ class FrameSequence:
 
     def __init__(self, name: str, fps: float, size: tuple[int, int], loader, count: int,
                  region: np.ndarray | None = None, camera: Camera | None = None,
-                 depth_loader=None, poses: np.ndarray | None = None):
+                 depth_loader=None, poses: np.ndarray | None = None, crop: Crop | None = None):
+        """loader(i): frame i at the input's size, or, with `crop` given, already cut to that
+        box of the input and resized to `size` (`region` then at `size`)."""
         if count < 2:
             raise InputError(f"{name}: needs at least 2 frames, found {count}")
         self.name, self.fps, self.size, self.num_frames = name, fps, size, count
         self._load = loader
         self._depth = depth_loader
         self.poses = poses
+        self._fitted = crop is not None
+        self.camera = None if camera is None else camera.resized(size[1], size[0])
         first = loader(0)
         if first.ndim != 3 or first.shape[2] != 3:
             raise InputError(f"{name}: frames must be RGB with 3 channels, got shape {first.shape}")
+        if self._fitted:
+            if region is None or region.shape != size or first.shape[:2] != size:
+                raise InputError(f"{name}: fitted frames and region must be {size}")
+            self.crop, self.region = crop, region
+            return
         picks = np.linspace(0, count - 1, min(count, 24)).round().astype(int)
         full_region = region if region is not None else detect_region([loader(i) for i in picks])
         if full_region.shape != first.shape[:2] or not full_region.any():
@@ -84,7 +94,6 @@ class FrameSequence:
         self.crop = Crop(int(xs.min()), int(ys.min()), int(xs.max() - xs.min() + 1),
                          int(ys.max() - ys.min() + 1), w_in, h_in)
         self.region = self._fit(full_region.astype(np.uint8), cv2.INTER_NEAREST).astype(bool)
-        self.camera = None if camera is None else camera.resized(size[1], size[0])
 
     def _fit(self, image: np.ndarray, interpolation: int) -> np.ndarray:
         c = self.crop
@@ -93,7 +102,8 @@ class FrameSequence:
 
     def frame(self, index: int) -> np.ndarray:
         """RGB uint8 (H, W, 3) at network size."""
-        return self._fit(self._load(index), cv2.INTER_AREA)
+        image = self._load(index)
+        return image if self._fitted else self._fit(image, cv2.INTER_AREA)
 
     def depth(self, index: int) -> np.ndarray | None:
         """Ground-truth z-depth at network size (simulated inputs only)."""
@@ -150,19 +160,17 @@ def _image_folder(path: Path, size: tuple[int, int], region: np.ndarray | None
 
 
 def _video(path: Path, size: tuple[int, int], region: np.ndarray | None) -> FrameSequence:
-    """Decode the whole video (at its own size) into memory."""
-    capture = cv2.VideoCapture(str(path))
-    if not capture.isOpened():
-        raise InputError(f"cannot open video {path}: unreadable or not a video")
-    fps = capture.get(cv2.CAP_PROP_FPS) or 30.0
-    frames = []
-    while True:
-        ok, frame = capture.read()
-        if not ok:
-            break
-        frames.append(cv2.cvtColor(frame, cv2.COLOR_BGR2RGB))
-    capture.release()
-    if not frames:
-        raise InputError(f"{path}: no frames could be decoded (empty or corrupt video)")
-    return FrameSequence(str(path), float(fps), size, frames.__getitem__, len(frames),
-                         region=region)
+    """Stream the video into a temporary file of network-sized frames, read back on demand, so
+    that memory does not grow with the video's length (hybrid.ingest, as `c2d2 run` does)."""
+    from hybrid.ingest import ingest  # it builds on this module
+    from hybrid.npyio import NpyRows
+
+    folder = tempfile.TemporaryDirectory(prefix="c2d2-frames-")
+    record, small_region = ingest(path, size, Path(folder.name) / "frames.npy", region)
+    rows = NpyRows(Path(folder.name) / "frames.npy")
+
+    def load(index: int, _keep=folder) -> np.ndarray:  # the folder lives as long as the loader
+        return rows[index]
+
+    return FrameSequence(str(path), record.fps, size, load, record.frames, region=small_region,
+                         crop=Crop(**record.crop))

@@ -133,6 +133,34 @@ def test_crop_maps_network_intrinsics_back_to_the_input(tmp_path):
     assert y_in == pytest.approx(crop.y0 + (v + 0.5) * sy - 0.5, rel=1e-12)
 
 
+def test_a_video_is_streamed_into_network_sized_frames(tmp_path):
+    """A video is read into a file of frames at the network's size, not held at its own size;
+    each frame is the decoded one cut to the detected region and resized."""
+    frames = [disc_frame(seed=s) for s in range(4)]
+    video = tmp_path / "clip.avi"
+    writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"MJPG"), 25.0, (120, 100))
+    for frame in frames:
+        writer.write(cv2.cvtColor(frame, cv2.COLOR_RGB2BGR))
+    writer.release()
+    seq = open_sequence(video, (64, 96))
+    assert (seq.num_frames, seq.fps) == (4, pytest.approx(25.0))
+    assert seq._load(0).shape == (64, 96, 3)  # what the sequence keeps is network-sized
+
+    images = open_sequence(write_images(tmp_path / "frames", frames), (64, 96))
+    c, d = seq.crop, images.crop
+    assert (c.input_width, c.input_height) == (120, 100)
+    assert max(abs(c.x0 - d.x0), abs(c.y0 - d.y0), abs(c.width - d.width),
+               abs(c.height - d.height)) <= 1  # the same region, up to JPEG's ringing
+    capture = cv2.VideoCapture(str(video))
+    for index in range(4):
+        ok, decoded = capture.read()
+        assert ok
+        cut = cv2.cvtColor(decoded, cv2.COLOR_BGR2RGB)[c.y0:c.y0 + c.height, c.x0:c.x0 + c.width]
+        assert np.array_equal(seq.frame(index), cv2.resize(cut, (96, 64),
+                                                           interpolation=cv2.INTER_AREA))
+    capture.release()
+
+
 # --- `c2d2 depth` --------------------------------------------------------------------------
 
 def test_depth_runs_on_a_folder_of_images(tmp_path, tiny_checkpoint):
