@@ -3,9 +3,9 @@
 Each simulated procedure has its own camera (horizontal field of view 90-130 degrees). The
 per-frame network sees a depth image, not the field of view, so a camera wider than it
 assumes sees more of the wall than it predicts. Prints, per procedure (sorted by field of
-view), the per-frame bias and MAE for the (1, 4) cm pair, the per-segment bias, and how often
-the sign of the travel input's z (moving along the view or against it) agrees with the true
-motion's; then the correlation of field of view with the per-frame bias.
+view), the per-frame bias and MAE for the default (1, 4) cm pair, the per-segment bias, and
+how often the sign of the travel input's z (moving along the view or against it) agrees with
+the true motion's; then the correlation of field of view with the per-frame bias.
 
     .venv/bin/python benchmarks/coverage_by_camera.py \
         --data data/cov-pink/proc_0012 ... [--model MODEL]
@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from hybrid.coverage import DEFAULT_PAIR_CM, DELTA_PAIRS_CM
 from hybrid.dataset import Procedure
 from learned.checkpoints import SHIPPED_COVERAGE, SHIPPED_DEPTH
 from learned.coverage_nets import load_coverage_model
@@ -42,18 +43,19 @@ def main() -> None:
     args = parser.parse_args()
     model = load_coverage_model(args.model)
     paths = expand_inputs(args.data)
-    pair = 1  # the (1, 4) cm pair, the default
+    pair = DELTA_PAIRS_CM.index(DEFAULT_PAIR_CM)
     rows = []
     for path, samples in zip(paths, load_samples(paths, model.config, args.depth_checkpoint),
                              strict=True):
-        camera = Procedure.open(path).camera
+        proc = Procedure.open(path)
+        camera = proc.camera
         fov = 2 * np.degrees(np.arctan(camera.width / 2 / camera.fx))
         frame, segment = predict(model, samples)
         labelled = np.isfinite(samples.frame_labels[:, pair])
         error = frame[labelled, pair] - samples.frame_labels[labelled, pair]
         rows.append((fov, error.mean(), np.abs(error).mean(),
                      np.nanmean(segment - samples.segment_labels),
-                     travel_agreement(Procedure.open(path).poses, samples.travel,
+                     travel_agreement(proc.poses, samples.travel,
                                       model.config.travel_frames(camera.fps)), samples.name))
     print("field of view (deg)  frame bias  frame MAE  segment bias  travel z sign  procedure")
     for fov, bias, mae, segment_bias, agree, name in sorted(rows):

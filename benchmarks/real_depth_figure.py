@@ -52,7 +52,7 @@ def main() -> None:
         for name, path in sources.items():
             seq = open_sequence(path, size)
             result = infer_sequence(model, seq)
-            K = aggregate_intrinsics(result.K_pairs, seq)
+            K = aggregate_intrinsics(result.K_pairs, seq.size, seq.crop, seq.fps)
             print(f"{name}: input {K['width']}x{K['height']}, fx {K['fx']:.1f} "
                   f"(std {K['spread']['fx']['std']:.1f}), fy {K['fy']:.1f}, cx {K['cx']:.1f}, "
                   f"cy {K['cy']:.1f}; pairs {K['pairs']}")

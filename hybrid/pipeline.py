@@ -84,14 +84,18 @@ class RunConfig:
 class Models:
     depth: DepthModel
     coverage: CoverageModel
+    tags: dict[str, str]
+    """SHA-256 prefixes of the files they were read from: a file replaced at the same path is
+    another model, so a work folder records them."""
 
     @classmethod
     def load(cls, config: RunConfig) -> Models:
         from learned.checkpoints import SHIPPED_COVERAGE, SHIPPED_DEPTH
 
-        depth = load_depth_model(Path(config.depth_checkpoint or SHIPPED_DEPTH))
-        coverage = load_coverage_model(Path(config.coverage_checkpoint or SHIPPED_COVERAGE))
-        return cls(depth, coverage)
+        depth = Path(config.depth_checkpoint or SHIPPED_DEPTH)
+        coverage = Path(config.coverage_checkpoint or SHIPPED_COVERAGE)
+        return cls(load_depth_model(depth), load_coverage_model(coverage),
+                   {"depth": file_tag(depth), "coverage": file_tag(coverage)})
 
 
 class _Run:
@@ -264,7 +268,7 @@ def video_features(source: Path, work: Path, config: RunConfig, models: Models,
     """The ingest and depth stages of `run_video` (resumable, in `work`), then the per-frame
     coverage features (N, F); returns them with the frames per segment."""
     source, work = Path(source), Path(work)
-    _prepare(work, config, source)
+    _prepare(work, config, source, models)
     run = _Run(source, work, config, models, None, progress)
     if not (work / W.INGEST).is_file():
         run.ingest()
@@ -287,8 +291,8 @@ def run_video(source: Path, out: Path, config: RunConfig = RunConfig(),
     that could not run. Trailing frames that do not fill a segment get no verdict (a note).
     """
     source, out = Path(source), Path(out)
-    models = models or Models.load(config)  # a missing checkpoint is named before _prepare
-    _prepare(out, config, source)
+    models = models or Models.load(config)
+    _prepare(out, config, source, models)
     run = _Run(source, out, config, models, region, progress)
     stages: list[tuple[str, Callable[[], None], list[str]]] = [
         ("ingest", run.ingest, [W.FRAMES, W.INGEST, W.REGION]),
@@ -333,16 +337,7 @@ def run_video(source: Path, out: Path, config: RunConfig = RunConfig(),
     return {"timing": timing, "warnings": warnings}
 
 
-def _checkpoint_tags(config: RunConfig) -> dict[str, str]:
-    """SHA-256 prefixes of the model files a run reads: a file replaced at the same path is
-    another model."""
-    from learned.checkpoints import SHIPPED_COVERAGE, SHIPPED_DEPTH
-
-    return {"depth": file_tag(Path(config.depth_checkpoint or SHIPPED_DEPTH)),
-            "coverage": file_tag(Path(config.coverage_checkpoint or SHIPPED_COVERAGE))}
-
-
-def _prepare(out: Path, config: RunConfig, source: Path) -> None:
+def _prepare(out: Path, config: RunConfig, source: Path, models: Models) -> None:
     """Create the work directory; refuse one that holds a run of another video, config or
     model files."""
     try:
@@ -357,7 +352,7 @@ def _prepare(out: Path, config: RunConfig, source: Path) -> None:
     identity = {"path": str(source.resolve()),
                 "size": source.stat().st_size if source.is_file() else None}
     resolved = {"config": json.loads(json.dumps(asdict(config))), "source": identity,
-                "checkpoints": _checkpoint_tags(config), "c2d2_version": __version__}
+                "checkpoints": models.tags, "c2d2_version": __version__}
     if saved.is_file():
         previous = json.loads(saved.read_text())
         if previous.get("source") != identity:
@@ -366,10 +361,13 @@ def _prepare(out: Path, config: RunConfig, source: Path) -> None:
         if previous.get("config") != resolved["config"]:
             raise InputError(f"{out} holds a run made with another configuration; use another "
                              f"--out or delete it to start again")
-        if previous.get("checkpoints") != resolved["checkpoints"]:
+        if "checkpoints" not in previous:
+            raise InputError(f"{out} holds a run by an earlier c2d2 that did not record its "
+                             f"model files, so it cannot be resumed safely; use another --out "
+                             f"or delete it to start again")
+        if previous["checkpoints"] != models.tags:
             raise InputError(f"{out} holds a run made with other model checkpoints (SHA-256 "
-                             f"prefixes {previous.get('checkpoints')}, now "
-                             f"{resolved['checkpoints']}); use another --out or delete it to "
-                             f"start again")
+                             f"prefixes {previous['checkpoints']}, now {models.tags}); use "
+                             f"another --out or delete it to start again")
     elif source.exists():
         W.write_json(saved, resolved)

@@ -1,14 +1,19 @@
 """Frame sequences at the network's size: simulated procedures, image folders, videos.
 
 Real endoscope frames carry a black border (circular or octagonal mask, overlays). The image
-region is detected from frames sampled over the sequence (pixels that are ever bright), the
-frames are cropped to its bounding box and resized; the region becomes a mask so that losses
-ignore the border. `Crop` maps intrinsics back to the input's own pixels.
+region is detected from the frames (pixels that are ever bright: 24 sampled images of a
+folder, every frame of a video), the frames are cropped to its bounding box and resized; the
+region becomes a mask so that losses ignore the border. `Crop` maps intrinsics back to the
+input's own pixels. A video is streamed into a temporary file of network-sized frames.
 """
 
 from __future__ import annotations
 
+import logging
+import os
+import shutil
 import tempfile
+import weakref
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -16,6 +21,8 @@ import cv2
 import numpy as np
 
 from hybrid.types import Camera, InputError
+
+log = logging.getLogger(__name__)
 
 VIDEO_SUFFIXES = {".mp4", ".avi", ".mov", ".mkv", ".mpg", ".mpeg", ".webm", ".m4v", ".wmv"}
 IMAGE_SUFFIXES = {".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff"}
@@ -80,8 +87,10 @@ class FrameSequence:
         if first.ndim != 3 or first.shape[2] != 3:
             raise InputError(f"{name}: frames must be RGB with 3 channels, got shape {first.shape}")
         if self._fitted:
-            if region is None or region.shape != size or first.shape[:2] != size:
+            if region is None or region.shape != tuple(size) or first.shape[:2] != tuple(size):
                 raise InputError(f"{name}: fitted frames and region must be {size}")
+            if depth_loader is not None:
+                raise InputError(f"{name}: fitted frames come without ground-truth depth")
             self.crop, self.region = crop, region
             return
         picks = np.linspace(0, count - 1, min(count, 24)).round().astype(int)
@@ -161,16 +170,25 @@ def _image_folder(path: Path, size: tuple[int, int], region: np.ndarray | None
 
 def _video(path: Path, size: tuple[int, int], region: np.ndarray | None) -> FrameSequence:
     """Stream the video into a temporary file of network-sized frames, read back on demand, so
-    that memory does not grow with the video's length (hybrid.ingest, as `c2d2 run` does)."""
+    that no frame is held at the video's own size (hybrid.ingest, as `c2d2 run` does)."""
     from hybrid.ingest import ingest  # it builds on this module
     from hybrid.npyio import NpyRows
 
-    folder = tempfile.TemporaryDirectory(prefix="c2d2-frames-")
-    record, small_region = ingest(path, size, Path(folder.name) / "frames.npy", region)
-    rows = NpyRows(Path(folder.name) / "frames.npy")
+    folder = Path(tempfile.mkdtemp(prefix="c2d2-frames-"))
+    try:
+        record, small_region = ingest(path, size, folder / "frames.npy", region)
+        seq = FrameSequence(str(path), record.fps, size, NpyRows(folder / "frames.npy").__getitem__,
+                            record.frames, region=small_region, crop=Crop(**record.crop))
+    except BaseException:
+        shutil.rmtree(folder, ignore_errors=True)
+        raise
+    weakref.finalize(seq, _remove_own, folder, os.getpid())
+    if record.decode_warning:
+        log.warning("%s: %s", path, record.decode_warning)
+    return seq
 
-    def load(index: int, _keep=folder) -> np.ndarray:  # the folder lives as long as the loader
-        return rows[index]
 
-    return FrameSequence(str(path), record.fps, size, load, record.frames, region=small_region,
-                         crop=Crop(**record.crop))
+def _remove_own(folder: Path, owner: int) -> None:
+    """Delete a temporary folder, but only from the process that made it (not a fork)."""
+    if os.getpid() == owner:
+        shutil.rmtree(folder, ignore_errors=True)

@@ -4,8 +4,10 @@ image region and the crop that maps intrinsics back to the input's pixels."""
 
 from __future__ import annotations
 
+import gc
 import json
 import math
+import tempfile
 from dataclasses import replace
 from pathlib import Path
 
@@ -142,7 +144,10 @@ def test_a_video_is_streamed_into_network_sized_frames(tmp_path):
     for frame in frames:
         writer.write(cv2.cvtColor(frame, cv2.COLOR_RGB2BGR))
     writer.release()
+    temporary = Path(tempfile.gettempdir())
+    before = set(temporary.glob("c2d2-frames-*"))
     seq = open_sequence(video, (64, 96))
+    assert len(set(temporary.glob("c2d2-frames-*")) - before) == 1
     assert (seq.num_frames, seq.fps) == (4, pytest.approx(25.0))
     assert seq._load(0).shape == (64, 96, 3)  # what the sequence keeps is network-sized
 
@@ -159,6 +164,9 @@ def test_a_video_is_streamed_into_network_sized_frames(tmp_path):
         assert np.array_equal(seq.frame(index), cv2.resize(cut, (96, 64),
                                                            interpolation=cv2.INTER_AREA))
     capture.release()
+    del seq
+    gc.collect()
+    assert set(temporary.glob("c2d2-frames-*")) == before  # the frames' file went with it
 
 
 # --- `c2d2 depth` --------------------------------------------------------------------------

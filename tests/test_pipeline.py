@@ -285,18 +285,25 @@ def test_cli_refuses_a_partial_run_with_another_config(pipeline_run, procedure, 
     assert snapshot(work) == kept  # nothing deleted, nothing written
 
 
-def test_cli_refuses_a_partial_run_made_with_another_checkpoint(pipeline_run, procedure,
-                                                                tmp_path):
-    """A checkpoint replaced at the same path is another model: its run is not resumed."""
+@pytest.mark.parametrize("record, expected", [
+    ({"depth": "0" * 12}, "other model checkpoints"),  # a file replaced at the same path
+    (None, "did not record its model files"),  # a folder of a c2d2 from before the record
+])
+def test_cli_refuses_a_partial_run_made_with_other_model_files(pipeline_run, procedure,
+                                                               tmp_path, record, expected):
+    """A run is resumed only with the model files it was made with."""
     out, _ = pipeline_run
     work, _ = interrupted_copy(out, tmp_path)
     saved = json.loads((work / W.CONFIG).read_text())
-    saved["checkpoints"]["coverage"] = "0" * 12  # as if the file at that path had changed
+    if record is None:
+        del saved["checkpoints"]
+    else:
+        saved["checkpoints"].update(record)
     (work / W.CONFIG).write_text(json.dumps(saved))
     kept = snapshot(work)
     result = runner.invoke(app, ["run", str(procedure.path), "--out", str(work)])
     message = assert_input_error(result, str(work))
-    assert "other model checkpoints" in message
+    assert expected in message
     assert snapshot(work) == kept
 
 
