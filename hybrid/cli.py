@@ -322,15 +322,19 @@ def eval_depth(
 
     model = load_depth_model(checkpoint or _shipped_checkpoint())
     size = (model.config.height, model.config.width)
-    results = {}
-    for path in expand_inputs(data):
-        results[path.name] = evaluate_sequence(model, open_sequence(path, size), frames)
+    paths = expand_inputs(data)
+    names = [p.name for p in paths]
+    if len(set(names)) < len(names):  # e.g. proc_0000 of two datasets
+        names = [f"{p.parent.name}/{p.name}" for p in paths]
+    results = {name: evaluate_sequence(model, open_sequence(path, size), frames)
+               for name, path in zip(names, paths, strict=True)}
     summary = summarise(results)
     keys = DEPTH_KEYS + ("fx_rel", "fy_rel", "cx_rel", "cy_rel", "ate", "rpe_translation",
                          "rpe_rotation_deg")
-    typer.echo("procedure      " + " ".join(f"{k:>9.9s}" for k in keys))
+    width = max(14, *map(len, names))
+    typer.echo(f"{'procedure':{width}s} " + " ".join(f"{k:>9.9s}" for k in keys))
     for name, m in [*results.items(), ("MEAN", summary)]:
-        typer.echo(f"{name:14.14s} " + " ".join(f"{m[k]:9.4f}" for k in keys))
+        typer.echo(f"{name:{width}s} " + " ".join(f"{m[k]:9.4f}" for k in keys))
     if out is not None:
         out.write_text(json.dumps({"mean": summary, "procedures": results}, indent=1) + "\n")
 

@@ -7,6 +7,7 @@ from __future__ import annotations
 import gc
 import json
 import math
+import shutil
 import tempfile
 from dataclasses import replace
 from pathlib import Path
@@ -264,6 +265,21 @@ def test_eval_depth_needs_ground_truth(tmp_path, tiny_checkpoint):
                                  "--checkpoint", str(tiny_checkpoint)])
     message = assert_clean_error(result, "real_frames")
     assert "ground truth" in message
+
+
+def test_eval_depth_keeps_procedures_of_the_same_name_apart(tmp_path, tiny_checkpoint,
+                                                            simulated):
+    """proc_0000 of two datasets: both are evaluated and reported, under their folders' names."""
+    for dataset in ("a", "b"):
+        shutil.copytree(simulated, tmp_path / dataset / simulated.name)
+    out = tmp_path / "eval.json"
+    result = runner.invoke(app, ["eval-depth", "--data", str(tmp_path / "a"), "--data",
+                                 str(tmp_path / "b"), "--checkpoint", str(tiny_checkpoint),
+                                 "--frames", "2", "--out", str(out)])
+    assert result.exit_code == 0, result.output
+    procedures = json.loads(out.read_text())["procedures"]
+    assert sorted(procedures) == [f"a/{simulated.name}", f"b/{simulated.name}"]
+    assert procedures[f"a/{simulated.name}"] == procedures[f"b/{simulated.name}"]
 
 
 def test_train_depth_with_an_unknown_preset(tmp_path):
