@@ -292,6 +292,8 @@ def depth(
                                                     "shipped fast one).")] = None,
     mask: Annotated[Path | None, typer.Option(help="Image-region mask (white = image) in the "
                                               "input's size; detected if omitted.")] = None,
+    fps: Annotated[float | None, typer.Option(help="Frame rate, if the video's is missing or "
+                                              "wrong (image folders: 30).")] = None,
 ):
     """Per-frame depth, relative poses and one intrinsics estimate for an input."""
     from learned.frames import open_sequence
@@ -299,7 +301,9 @@ def depth(
     from learned.model import load_depth_model
 
     model = load_depth_model(checkpoint or _shipped_checkpoint())
-    seq = open_sequence(input, (model.config.height, model.config.width), _read_mask(mask))
+    if fps is not None and not fps > 0:
+        raise InputError(f"--fps must be positive, got {fps}")
+    seq = open_sequence(input, (model.config.height, model.config.width), _read_mask(mask), fps)
     write_depth_outputs(out, seq, infer_sequence(model, seq, progress=True))
     typer.echo(str(out))
 

@@ -119,11 +119,12 @@ class FrameSequence:
         return None if self._depth is None else self._fit(self._depth(index), cv2.INTER_NEAREST)
 
 
-def open_sequence(path: Path, size: tuple[int, int], region: np.ndarray | None = None
-                  ) -> FrameSequence:
+def open_sequence(path: Path, size: tuple[int, int], region: np.ndarray | None = None,
+                  fps: float | None = None) -> FrameSequence:
     """A simulated procedure folder, a folder of images, or a video file.
 
     region: the image region in input pixels (bool); detected from the frames if None.
+    fps: the frame rate of a video or image folder (None: the video's own; 30 for images).
     """
     path = Path(path)
     if not path.exists():
@@ -133,9 +134,9 @@ def open_sequence(path: Path, size: tuple[int, int], region: np.ndarray | None =
             raise InputError(f"{path}: a simulated procedure has no border; drop the mask")
         return _simulated(path, size)
     if path.is_dir():
-        return _image_folder(path, size, region)
+        return _image_folder(path, size, region, fps or 30.0)
     if path.suffix.lower() in VIDEO_SUFFIXES:
-        return _video(path, size, region)
+        return _video(path, size, region, fps)
     raise InputError(f"{path}: not a video ({', '.join(sorted(VIDEO_SUFFIXES))}), a folder of "
                      f"images or a simulated procedure")
 
@@ -150,7 +151,7 @@ def _simulated(path: Path, size: tuple[int, int]) -> FrameSequence:
                          poses=proc.poses)
 
 
-def _image_folder(path: Path, size: tuple[int, int], region: np.ndarray | None
+def _image_folder(path: Path, size: tuple[int, int], region: np.ndarray | None, fps: float
                   ) -> FrameSequence:
     files = sorted(p for p in path.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
     if not files:
@@ -165,10 +166,11 @@ def _image_folder(path: Path, size: tuple[int, int], region: np.ndarray | None
                              f"{image.shape}")
         return cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
 
-    return FrameSequence(str(path), 30.0, size, load, len(files), region=region)
+    return FrameSequence(str(path), fps, size, load, len(files), region=region)
 
 
-def _video(path: Path, size: tuple[int, int], region: np.ndarray | None) -> FrameSequence:
+def _video(path: Path, size: tuple[int, int], region: np.ndarray | None, fps: float | None
+           ) -> FrameSequence:
     """Stream the video into a temporary file of network-sized frames, read back on demand, so
     that no frame is held at the video's own size (hybrid.ingest, as `c2d2 run` does)."""
     from hybrid.ingest import ingest  # it builds on this module
@@ -176,7 +178,7 @@ def _video(path: Path, size: tuple[int, int], region: np.ndarray | None) -> Fram
 
     folder = Path(tempfile.mkdtemp(prefix="c2d2-frames-"))
     try:
-        record, small_region = ingest(path, size, folder / "frames.npy", region)
+        record, small_region = ingest(path, size, folder / "frames.npy", region, fps)
         seq = FrameSequence(str(path), record.fps, size, NpyRows(folder / "frames.npy").__getitem__,
                             record.frames, region=small_region, crop=Crop(**record.crop))
     except BaseException:

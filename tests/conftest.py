@@ -1,5 +1,5 @@
 """Shared fixtures: a hand-made open cylinder, analytic field-of-view fractions, a simulated
-procedure.
+procedure, a video writer.
 
 The cylinder is built here, not by the simulator, so that coverage is checked against geometry
 whose visible area can be integrated by hand: wall point (R cos θ, R sin θ, z), lumen = the
@@ -11,6 +11,7 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 import torch
@@ -171,3 +172,14 @@ def one_thread():
     torch.set_num_threads(1)
     yield
     torch.set_num_threads(previous)
+
+
+def write_video(path: Path, frames: list[np.ndarray], fps: float) -> Path:
+    """MJPG .avi (lossy but decodable everywhere) of RGB frames."""
+    height, width = frames[0].shape[:2]
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), fps, (width, height))
+    assert writer.isOpened()
+    for frame in frames:
+        writer.write(cv2.cvtColor(frame, cv2.COLOR_RGB2BGR))
+    writer.release()
+    return path

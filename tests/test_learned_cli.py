@@ -16,7 +16,7 @@ import cv2
 import numpy as np
 import pytest
 import torch
-from conftest import TINY
+from conftest import TINY, write_video
 from typer.testing import CliRunner
 
 from hybrid.cli import app
@@ -140,11 +140,7 @@ def test_a_video_is_streamed_into_network_sized_frames(tmp_path):
     """A video is read into a file of frames at the network's size, not held at its own size;
     each frame is the decoded one cut to the detected region and resized."""
     frames = [disc_frame(seed=s) for s in range(4)]
-    video = tmp_path / "clip.avi"
-    writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"MJPG"), 25.0, (120, 100))
-    for frame in frames:
-        writer.write(cv2.cvtColor(frame, cv2.COLOR_RGB2BGR))
-    writer.release()
+    video = write_video(tmp_path / "clip.avi", frames, 25.0)
     temporary = Path(tempfile.gettempdir())
     before = set(temporary.glob("c2d2-frames-*"))
     seq = open_sequence(video, (64, 96))
@@ -186,6 +182,17 @@ def test_depth_runs_on_a_folder_of_images(tmp_path, tiny_checkpoint):
     assert poses.shape == (3, 4, 4) and np.array_equal(poses[0], np.eye(4))
     intrinsics = json.loads((out / "intrinsics.json").read_text())
     assert (intrinsics["width"], intrinsics["height"], intrinsics["pairs"]) == (120, 100, 2)
+
+
+@pytest.mark.parametrize("extra, fps", [((), 25.0), (("--fps", "12.5"), 12.5)])
+def test_depth_on_a_video_takes_its_frame_rate_or_the_one_given(tmp_path, tiny_checkpoint,
+                                                                 extra, fps):
+    video = write_video(tmp_path / "clip.avi", [disc_frame(seed=s) for s in range(3)], 25.0)
+    out = tmp_path / "out"
+    result = run_depth(video, out, tiny_checkpoint, *extra)
+    assert result.exit_code == 0, result.output
+    assert json.loads((out / "intrinsics.json").read_text())["fps"] == pytest.approx(fps)
+    assert len(list((out / "depth").iterdir())) == 3
 
 
 def test_depth_on_an_unreadable_video(tmp_path, tiny_checkpoint):

@@ -19,6 +19,7 @@ import cv2
 import numpy as np
 import pytest
 import torch
+from conftest import write_video
 from test_learned_cli import runner
 
 from hybrid import workdir as W
@@ -85,17 +86,6 @@ def pipeline_run(procedure, tmp_path_factory) -> tuple[Path, dict]:
 @pytest.fixture(scope="module")
 def frames(procedure) -> list[np.ndarray]:
     return [procedure.rgb(i) for i in range(procedure.num_frames)]
-
-
-def write_video(path: Path, frames: list[np.ndarray], fps: float = FPS) -> Path:
-    """MJPG .avi (lossy but decodable everywhere) of RGB frames."""
-    height, width = frames[0].shape[:2]
-    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), fps, (width, height))
-    assert writer.isOpened()
-    for frame in frames:
-        writer.write(cv2.cvtColor(frame, cv2.COLOR_RGB2BGR))
-    writer.release()
-    return path
 
 
 def decodable_frames(path: Path) -> int:
@@ -315,7 +305,7 @@ def test_cli_refuses_a_work_folder_of_another_video(pipeline_run, frames, tmp_pa
     work = tmp_path / "work"
     shutil.copytree(out, work)
     kept = snapshot(work)
-    other = write_video(tmp_path / "other.avi", frames[:110])
+    other = write_video(tmp_path / "other.avi", frames[:110], FPS)
     result = runner.invoke(app, ["run", str(other), "--out", str(work)])
     message = assert_input_error(result, str(work), "other.avi")
     assert "holds a run of" in message
@@ -330,8 +320,8 @@ def read_summary(out: Path) -> dict[str, dict]:
 def test_batch_resumes_after_a_kill_and_isolates_a_bad_file(frames, tmp_path):
     videos = tmp_path / "videos"
     videos.mkdir()
-    write_video(videos / "a_first.avi", frames[:110])  # 11 s: one segment each
-    write_video(videos / "b_second.avi", frames[90:200])
+    write_video(videos / "a_first.avi", frames[:110], FPS)  # 11 s: one segment each
+    write_video(videos / "b_second.avi", frames[90:200], FPS)
     (videos / "c_notes.mp4").write_text("minutes of the meeting, not a video\n")
     out = tmp_path / "out"
 
@@ -383,9 +373,9 @@ BAD_VIDEOS = {
                         "cannot open video"),
     "empty.mp4": (lambda p, f: p.write_bytes(b""), "cannot open video"),
     "no_frames.avi": (lambda p, f: _no_frames(p), "no frames"),
-    "three_seconds.avi": (lambda p, f: write_video(p, f[:30]),
+    "three_seconds.avi": (lambda p, f: write_video(p, f[:30], FPS),
                           "shorter than one 10-s segment"),
-    "all_black.avi": (lambda p, f: write_video(p, [np.zeros_like(f[0])] * 120), "black"),
+    "all_black.avi": (lambda p, f: write_video(p, [np.zeros_like(f[0])] * 120, FPS), "black"),
 }
 
 
@@ -407,7 +397,7 @@ def test_run_on_bad_input(name, frames, tmp_path):
 
 def test_run_into_an_output_folder_that_cannot_be_made(frames, tmp_path):
     """As root, permissions do not stop a write: a path below a regular file does."""
-    video = write_video(tmp_path / "video.avi", frames[:30])
+    video = write_video(tmp_path / "video.avi", frames[:30], FPS)
     blocker = tmp_path / "notes.txt"
     blocker.write_text("not a folder")
     out = blocker / "run"
@@ -421,7 +411,7 @@ def test_run_on_a_video_with_corrupt_frames_in_the_middle(frames, tmp_path):
     """FFmpeg (OpenCV 5) skips the undecodable frames and decodes on to the end: the run writes
     its results from the frames that decode and exits with status 3 and a warning that says
     how many of the declared frames are lost."""
-    video = write_video(tmp_path / "damaged.avi", frames[:110])
+    video = write_video(tmp_path / "damaged.avi", frames[:110], FPS)
     data = bytearray(video.read_bytes())
     middle = len(data) // 2
     data[middle:middle + 8192] = bytes(8192)  # about three MJPG frames of 160x128
