@@ -132,6 +132,8 @@ def open_sequence(path: Path, size: tuple[int, int], region: np.ndarray | None =
     if path.is_dir() and (path / "rgb").is_dir() and (path / "camera.json").is_file():
         if region is not None:
             raise InputError(f"{path}: a simulated procedure has no border; drop the mask")
+        if fps is not None:
+            raise InputError(f"{path}: a simulated procedure has its own frame rate; drop --fps")
         return _simulated(path, size)
     if path.is_dir():
         return _image_folder(path, size, region, fps or 30.0)

@@ -195,6 +195,13 @@ def test_depth_on_a_video_takes_its_frame_rate_or_the_one_given(tmp_path, tiny_c
     assert len(list((out / "depth").iterdir())) == 3
 
 
+def test_depth_refuses_a_frame_rate_for_a_simulated_procedure(tmp_path, tiny_checkpoint,
+                                                               simulated):
+    result = run_depth(simulated, tmp_path / "out", tiny_checkpoint, "--fps", "12")
+    assert_clean_error(result, simulated.name, "--fps")
+    assert not (tmp_path / "out").exists()
+
+
 def test_depth_on_an_unreadable_video(tmp_path, tiny_checkpoint):
     fake = tmp_path / "not_a_video.mp4"
     fake.write_text("this is plain text, not an MPEG-4 file\n" * 20)
