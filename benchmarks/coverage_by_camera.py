@@ -24,15 +24,16 @@ from learned.checkpoints import SHIPPED_COVERAGE, SHIPPED_DEPTH
 from learned.coverage_nets import load_coverage_model
 from learned.coverage_train import load_samples, predict
 from learned.train import expand_inputs
+from learned.travel import travel_features
 
 
 def travel_agreement(poses: np.ndarray, travel: np.ndarray, gap: int) -> float:
-    """Share of frames whose travel z has the sign of the true displacement's z over `gap`
-    frames in the camera's axes (poses camera-to-world); NaN without a travel input."""
+    """Share of frames whose travel z has the sign of the one the true poses (camera-to-world)
+    give over `gap` frames; NaN without a travel input."""
     if not gap:
         return float("nan")
-    moved = np.einsum("nji,nj->ni", poses[:-gap, :3, :3], poses[gap:, :3, 3] - poses[:-gap, :3, 3])
-    return float(np.mean((moved[:, 2] > 0) == (travel[:-gap, 2] > 0)))
+    true = travel_features(np.linalg.inv(poses[gap:]) @ poses[:-gap], len(poses))
+    return float(np.mean((true[:-gap, 2] > 0) == (travel[:-gap, 2] > 0)))
 
 
 def main() -> None:

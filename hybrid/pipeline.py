@@ -125,9 +125,11 @@ class _Run:
         return NpyRows(self.path(W.DEPTH))
 
     def sequence(self) -> FrameSequence:
+        """The ingested frames (already cut to the image region and resized)."""
         frames = self.frames()
         return FrameSequence(self.source.name, self.ingested.fps, self.size, frames.__getitem__,
-                             len(frames), region=np.ones(self.size, dtype=bool))
+                             len(frames), region=np.ones(self.size, dtype=bool),
+                             crop=Crop(**self.ingested.crop))
 
     @property
     def segment_frames(self) -> int:
@@ -165,7 +167,7 @@ class _Run:
                  **{f"gap{g}": r for g, r in relative.items()})
         self.path(W.RELATIVE + ".partial.npz").replace(self.path(W.RELATIVE))
         W.write_json(self.path(W.INTRINSICS), aggregate_intrinsics(
-            _sample_intrinsics(model, seq), self.size, Crop(**self.ingested.crop), seq.fps))
+            _sample_intrinsics(model, seq), self.size, seq.crop, seq.fps))
         depth.close()  # last: its presence marks the stage complete
 
     def posegraph(self) -> None:
