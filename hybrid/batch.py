@@ -13,9 +13,11 @@ import json
 import os
 import traceback
 from concurrent.futures import ProcessPoolExecutor, as_completed
+from multiprocessing import get_context
 from pathlib import Path
 
 import numpy as np
+import torch
 from tqdm import tqdm
 
 from hybrid import workdir as W
@@ -40,8 +42,8 @@ def list_videos(folder: Path) -> list[Path]:
 
 
 def run_batch(folder: Path, out: Path, config: RunConfig | None = None, workers: int = 1,
-              progress: bool = True) -> Path:
-    """Run every video; returns the summary CSV's path."""
+              progress: bool = True, device: torch.device | str = "cpu") -> Path:
+    """Run every video, the networks on `device`; returns the summary CSV's path."""
     config = config or RunConfig()
     videos = list_videos(folder)
     out = Path(out)
@@ -49,15 +51,16 @@ def run_batch(folder: Path, out: Path, config: RunConfig | None = None, workers:
     rows: dict[str, dict] = {}
     bar = tqdm(total=len(videos), desc="videos", unit="video", disable=not progress)
     if workers == 1:
-        models = Models.load(config)
+        models = Models.load(config, device)
         for video in videos:
             rows[video.name] = _run_one(video, out / video.name, config, models)
             _write_summary(out, videos, rows)
             bar.update(1)
     else:
         threads = max(1, (os.cpu_count() or 1) // workers)
-        with ProcessPoolExecutor(workers) as pool:
-            futures = {pool.submit(_run_one, v, out / v.name, config, None, threads): v
+        # spawned, not forked: a forked worker cannot use CUDA
+        with ProcessPoolExecutor(workers, mp_context=get_context("spawn")) as pool:
+            futures = {pool.submit(_run_one, v, out / v.name, config, None, threads, device): v
                        for v in videos}
             for future in as_completed(futures):
                 video = futures[future]
@@ -73,15 +76,15 @@ def run_batch(folder: Path, out: Path, config: RunConfig | None = None, workers:
 
 
 def _run_one(video: Path, work: Path, config: RunConfig, models: Models | None,
-             threads: int | None = None) -> dict:
-    """One video; any failure becomes a row with its error (and work/error.txt)."""
+             threads: int | None = None, device: torch.device | str = "cpu") -> dict:
+    """One video (its own Models loaded on `device` if none are given); any failure becomes
+    a row with its error (and work/error.txt)."""
     if threads:
-        import torch
-
         torch.set_num_threads(threads)
     error_file = work / W.ERROR
     try:
         done_before = (work / W.REPORT).is_file()
+        models = models or Models.load(config, device)
         result = run_video(video, work, config, models, progress=False)
         if error_file.is_file():
             error_file.unlink()

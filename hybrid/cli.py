@@ -12,6 +12,9 @@ import typer
 
 from hybrid.types import InputError
 
+Device = Annotated[str, typer.Option(help="Device for the networks: auto (the GPU when torch "
+                                    "sees one, else the CPU), cpu, cuda or cuda:N.")]
+
 app = typer.Typer(help="C2D2: detect deficient coverage in colonoscopy video.",
                   no_args_is_help=True, add_completion=False, pretty_exceptions_enable=False)
 
@@ -96,20 +99,23 @@ def demo(
     length_cm: Annotated[float, typer.Option(help="Colon length in cm.")] = 50.0,
     max_frames: Annotated[int, typer.Option(min=300, help="Frames of the withdrawal (30 fps).")
                           ] = 1200,
+    device: Device = "auto",
 ):
     """Simulate a procedure with ground truth, run the whole pipeline on its video, and print
     per segment the true, learned and geometric coverage."""
     from hybrid.coverage import pair_key
     from hybrid.dataset import Procedure
-    from hybrid.pipeline import run_video
+    from hybrid.pipeline import Models, RunConfig, run_video
     from hybrid.sim.simulate import SimConfig, simulate_procedure, with_overrides
+    from learned.device import pick_device
 
     try:
         config = with_overrides(SimConfig(), length_cm=length_cm, max_frames=max_frames)
     except ValueError as err:
         raise InputError(str(err)) from err
+    models = Models.load(RunConfig(), pick_device(device))
     procedure = Procedure.open(simulate_procedure(out, seed, 0, config, progress=True))
-    result = run_video(procedure.path, out / "run", echo=typer.echo)
+    result = run_video(procedure.path, out / "run", models=models, echo=typer.echo)
     table = json.loads((out / "run" / "coverage.json").read_text())
     truth = procedure.coverage
     key = pair_key(truth.default_pair)
@@ -142,11 +148,13 @@ def run(
                                             "(the look-ahead band lies where the camera is "
                                             "going; both branches).")] = False,
     segment_seconds: Annotated[float, typer.Option(help="Segment length.")] = 10.0,
+    device: Device = "auto",
 ):
     """The whole pipeline on one video: coverage.json/.csv, mesh.ply, maps/, report.html."""
     from dataclasses import replace
 
-    from hybrid.pipeline import RunConfig, run_video
+    from hybrid.pipeline import Models, RunConfig, run_video
+    from learned.device import pick_device
 
     config = RunConfig(depth_checkpoint=_opt(depth_checkpoint),
                        coverage_checkpoint=_opt(coverage_checkpoint), fps=fps,
@@ -155,7 +163,8 @@ def run(
         rec = config.reconstruction
         config = replace(config, reconstruction=replace(
             rec, lumen=replace(rec.lumen, withdrawal=False)))
-    result = run_video(video, out, config, region=_read_mask(mask), echo=typer.echo)
+    result = run_video(video, out, config, Models.load(config, pick_device(device)),
+                       region=_read_mask(mask), echo=typer.echo)
     table = json.loads((out / "coverage.json").read_text())
     typer.echo("segment  time (s)      learned  geometric  agree  deficient  assessable")
     for r in table["segments"]:
@@ -174,13 +183,15 @@ def batch(
     out: Annotated[Path, typer.Option(help="Output folder: one work folder per video and "
                                       "summary.csv; rerun to resume.")],
     workers: Annotated[int, typer.Option(min=1, help="Videos processed in parallel.")] = 1,
+    device: Device = "auto",
 ):
     """Every video in a folder; failures are recorded per video while the rest go on."""
     import csv
 
     from hybrid.batch import run_batch
+    from learned.device import pick_device
 
-    summary = run_batch(folder, out, workers=workers)
+    summary = run_batch(folder, out, workers=workers, device=pick_device(device))
     rows = list(csv.DictReader(summary.open()))
     failed = [r for r in rows if r["status"] == "failed"]
     for r in failed:
@@ -195,15 +206,17 @@ def batch(
 def eval_pipeline(
     data: Annotated[list[Path], typer.Option(help="Simulated procedures, or folders of them.")],
     out: Annotated[Path, typer.Option(help="Work folders per procedure and eval.json.")],
+    device: Device = "auto",
 ):
     """MAE of learned and geometric coverage against the truth, and the branches' agreement."""
     from hybrid.dataset import Procedure
     from hybrid.evaluate import evaluate_pipeline
     from hybrid.pipeline import Models, RunConfig
+    from learned.device import pick_device
     from learned.train import expand_inputs
 
     config = RunConfig()
-    models = Models.load(config)
+    models = Models.load(config, pick_device(device))
     procedures = [Procedure.open(p) for p in expand_inputs(data)]
     summary = evaluate_pipeline(procedures, out, config, models, echo=typer.echo)
     typer.echo(json.dumps(summary["summary"], indent=1))
@@ -268,9 +281,11 @@ def train_depth(
     set_: Annotated[list[str] | None, typer.Option(
         "--set", help="Override a config field, e.g. --set pair_gap_s=0.6 (see learned/config.py)."
     )] = None,
+    device: Device = "auto",
 ):
     """Train depth, ego-motion and intrinsics by view synthesis; resumes from --out."""
     from learned.config import depth_config, parse_overrides
+    from learned.device import pick_device
     from learned.train import train_depth as run
 
     try:
@@ -279,7 +294,7 @@ def train_depth(
                               **parse_overrides(set_ or []))
     except ValueError as err:
         raise InputError(str(err)) from err
-    typer.echo(str(run(data, out, config, val or [])))
+    typer.echo(str(run(data, out, config, val or [], device=pick_device(device))))
 
 
 @app.command()
@@ -294,13 +309,15 @@ def depth(
                                               "input's size; detected if omitted.")] = None,
     fps: Annotated[float | None, typer.Option(help="Frame rate, if the video's is missing or "
                                               "wrong (image folders: 30).")] = None,
+    device: Device = "auto",
 ):
     """Per-frame depth, relative poses and one intrinsics estimate for an input."""
+    from learned.device import pick_device
     from learned.frames import open_sequence
     from learned.infer import infer_sequence, write_depth_outputs
     from learned.model import load_depth_model
 
-    model = load_depth_model(checkpoint or _shipped_checkpoint())
+    model = load_depth_model(checkpoint or _shipped_checkpoint(), device=pick_device(device))
     if fps is not None and not fps > 0:
         raise InputError(f"--fps must be positive, got {fps}")
     seq = open_sequence(input, (model.config.height, model.config.width), _read_mask(mask), fps)
@@ -317,14 +334,16 @@ def eval_depth(
     out: Annotated[Path | None, typer.Option(help="Write the metrics JSON here.")] = None,
     frames: Annotated[int, typer.Option(min=1, help="Frames per procedure for depth metrics.")
                       ] = 24,
+    device: Device = "auto",
 ):
     """MRE, DR-MRE, DOM, abs_rel & co., intrinsics error, ATE and RPE on simulated data."""
+    from learned.device import pick_device
     from learned.evaluate import DEPTH_KEYS, evaluate_sequence, summarise
     from learned.frames import open_sequence
     from learned.model import load_depth_model
     from learned.train import expand_inputs
 
-    model = load_depth_model(checkpoint or _shipped_checkpoint())
+    model = load_depth_model(checkpoint or _shipped_checkpoint(), device=pick_device(device))
     size = (model.config.height, model.config.width)
     paths = expand_inputs(data)
     names = [p.name for p in paths]
@@ -359,17 +378,20 @@ def train_coverage(
     set_: Annotated[list[str] | None, typer.Option(
         "--set", help="Override a config field, e.g. --set input_depth=true (see "
         "learned/config.py CoverageConfig).")] = None,
+    device: Device = "auto",
 ):
     """Train the per-frame then the per-segment coverage network, with k-fold CV; resumes."""
     from learned.config import COVERAGE_PRESETS, coverage_config, parse_overrides
     from learned.coverage_train import train_coverage as run
+    from learned.device import pick_device
 
     try:
         config = coverage_config(preset, folds=folds, seed=seed,
                                  **parse_overrides(set_ or [], COVERAGE_PRESETS["fast"]))
     except ValueError as err:
         raise InputError(str(err)) from err
-    typer.echo(str(run(data, out, config, depth_checkpoint or _shipped_checkpoint())))
+    typer.echo(str(run(data, out, config, depth_checkpoint or _shipped_checkpoint(),
+                       device=pick_device(device))))
 
 
 @app.command("eval-coverage")
@@ -381,16 +403,18 @@ def eval_coverage(
                                                "one).")] = None,
     depth_checkpoint: Annotated[Path | None, typer.Option(help="Depth model (default: the "
                                                           "shipped one).")] = None,
+    device: Device = "auto",
 ):
     """Per-frame MAE per Δ pair, per-segment MAE and 3-class accuracy, with scatter plots."""
     from learned.coverage_eval import coverage_metrics, format_table, scatter_plots
     from learned.coverage_nets import load_coverage_model
     from learned.coverage_train import evaluate, load_samples
+    from learned.device import pick_device
 
     model_path = model or _shipped_coverage()
-    net = load_coverage_model(model_path)
+    net = load_coverage_model(model_path, device=pick_device(device))
     samples = load_samples(data, net.config, depth_checkpoint or _shipped_checkpoint(),
-                           progress=True)
+                           progress=True, device=pick_device(device))
     predictions = evaluate(net, samples)
     metrics = coverage_metrics(predictions)
     out.mkdir(parents=True, exist_ok=True)
@@ -416,6 +440,7 @@ def adapt(
     source: Annotated[list[Path] | None, typer.Option(
         help="Synthetic videos or procedures the model was NOT trained on: their windows "
              "replace the training windows as CORAL's source statistics.")] = None,
+    device: Device = "auto",
 ):
     """Fit CORAL on unlabelled target videos and save the adapted coverage model.
 
@@ -430,6 +455,7 @@ def adapt(
     from learned.coral import adapt as fit
     from learned.coral import set_source
     from learned.coverage_nets import resample_features
+    from learned.device import pick_device
     from learned.train import expand_inputs
 
     if not out.parent.is_dir():
@@ -437,7 +463,7 @@ def adapt(
     config = RunConfig(depth_checkpoint=_opt(depth_checkpoint),
                        coverage_checkpoint=str(model or _shipped_coverage()),
                        segment_seconds=segment_seconds)
-    models = Models.load(config)
+    models = Models.load(config, pick_device(device))
     T, stride = models.coverage.config.segment_frames, models.coverage.config.segment_stride
 
     def features(paths: list[Path], work: Path) -> list:

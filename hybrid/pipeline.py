@@ -44,6 +44,7 @@ from learned.coverage_nets import (
     normalise_depth,
     resample_features,
 )
+from learned.device import device_of
 from learned.frames import Crop, FrameSequence
 from learned.infer import aggregate_intrinsics, predicted_depth, relative_poses
 from learned.model import DepthModel, load_depth_model, to_tensor
@@ -89,12 +90,14 @@ class Models:
     another model, so a work folder records them."""
 
     @classmethod
-    def load(cls, config: RunConfig) -> Models:
+    def load(cls, config: RunConfig, device: torch.device | str = "cpu") -> Models:
+        """The run's networks, on `device`."""
         from learned.checkpoints import SHIPPED_COVERAGE, SHIPPED_DEPTH
 
         depth = Path(config.depth_checkpoint or SHIPPED_DEPTH)
         coverage = Path(config.coverage_checkpoint or SHIPPED_COVERAGE)
-        return cls(load_depth_model(depth), load_coverage_model(coverage),
+        return cls(load_depth_model(depth, device=device),
+                   load_coverage_model(coverage, device=device),
                    {"depth": file_tag(depth), "coverage": file_tag(coverage)})
 
 
@@ -260,9 +263,9 @@ class _Run:
 def _sample_intrinsics(model: DepthModel, seq: FrameSequence, pairs: int = 64) -> np.ndarray:
     """K (M, 3, 3) of up to `pairs` consecutive pairs spread over the video."""
     starts = np.unique(np.linspace(0, seq.num_frames - 2, pairs).astype(int))
-    a = to_tensor(np.stack([seq.frame(t) for t in starts]))
-    b = to_tensor(np.stack([seq.frame(t + 1) for t in starts]))
-    return model.pair_motion(a, b)[-1].numpy().astype(np.float64)
+    a = to_tensor(np.stack([seq.frame(t) for t in starts]), device_of(model))
+    b = to_tensor(np.stack([seq.frame(t + 1) for t in starts]), device_of(model))
+    return model.pair_motion(a, b)[-1].cpu().numpy().astype(np.float64)
 
 
 def video_features(source: Path, work: Path, config: RunConfig, models: Models,

@@ -22,7 +22,7 @@ def save_checkpoint(path: Path, modules: dict[str, torch.nn.Module], config: dic
                     step: int, optimizer: torch.optim.Optimizer | None = None,
                     kind: str = "depth") -> None:
     """Write modules' weights (and the optimiser's state) to path atomically."""
-    tensors = {f"{name}.{k}": v.detach().contiguous()
+    tensors = {f"{name}.{k}": v.detach().cpu().contiguous()
                for name, module in modules.items() for k, v in module.state_dict().items()}
     meta = {"kind": kind, "config": json.dumps(config), "step": str(step),
             "c2d2_version": __version__}
@@ -30,7 +30,7 @@ def save_checkpoint(path: Path, modules: dict[str, torch.nn.Module], config: dic
         state = optimizer.state_dict()
         for index, values in state["state"].items():
             for key, value in values.items():
-                tensors[f"optimizer.{index}.{key}"] = torch.as_tensor(value).contiguous()
+                tensors[f"optimizer.{index}.{key}"] = torch.as_tensor(value).cpu().contiguous()
         meta["optimizer_groups"] = json.dumps(state["param_groups"])
     path = Path(path)
     tmp = path.with_name(path.name + ".tmp")

@@ -56,7 +56,7 @@ def window_embeddings(model: CoverageModel, features: list[np.ndarray], stride: 
         longest = max((len(f) for f in features), default=0)
         raise InputError(f"CORAL needs {role} videos of at least {T} frames (one segment); "
                          f"the longest has {longest}")
-    return np.concatenate([model.segment_embeddings(f, ss).double().numpy()
+    return np.concatenate([model.segment_embeddings(f, ss).double().cpu().numpy()
                            for f, ss in zip(features, starts, strict=True) if ss])
 
 
@@ -78,7 +78,8 @@ def adapt(model: CoverageModel, target_features: list[np.ndarray], stride: int) 
     """
     embedded = window_embeddings(model, target_features, stride)
     net = model.segment
-    A, b = coral_transform(net.source_mean.double().numpy(), net.source_cov.double().numpy(),
+    A, b = coral_transform(net.source_mean.double().cpu().numpy(),
+                           net.source_cov.double().cpu().numpy(),
                            embedded)
     net.coral_matrix.copy_(torch.from_numpy(A).float())
     net.coral_offset.copy_(torch.from_numpy(b).float())

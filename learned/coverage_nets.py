@@ -25,6 +25,7 @@ from hybrid.coverage import DELTA_PAIRS_CM
 from hybrid.types import InputError
 from learned.checkpoint import load_model, save_checkpoint
 from learned.config import CoverageConfig
+from learned.device import device_of
 from learned.nets import ResNetEncoder
 
 
@@ -147,15 +148,16 @@ class CoverageModel(nn.Module):
                              f"N = {len(inputs)} frames (travel_gap {self.config.travel_gap}), "
                              f"got {travel.shape}")
         self.eval()
+        device = device_of(self)
         coverage, features = [], []
         for start in range(0, len(inputs), batch):
             x = torch.from_numpy(np.ascontiguousarray(inputs[start:start + batch],
-                                                      dtype=np.float32))
+                                                      dtype=np.float32)).to(device)
             m = torch.from_numpy(np.ascontiguousarray(travel[start:start + batch],
-                                                      dtype=np.float32))
+                                                      dtype=np.float32)).to(device)
             f = self.frame.features(x, m)
-            features.append(f.numpy())
-            coverage.append(torch.sigmoid(self.frame.head(f)).numpy())
+            features.append(f.cpu().numpy())
+            coverage.append(torch.sigmoid(self.frame.head(f)).cpu().numpy())
         return np.concatenate(coverage), np.concatenate(features)
 
     @torch.no_grad()
@@ -174,20 +176,22 @@ class CoverageModel(nn.Module):
         self.eval()
         chunks = [np.stack([features[s:s + T] for s in starts[k:k + batch]]).astype(np.float32)
                   for k in range(0, len(starts), batch)]
-        return torch.cat([self.segment.embed(torch.from_numpy(c)) for c in chunks]) if chunks \
-            else torch.zeros(0, self.segment.fc.in_features)
+        device = device_of(self)
+        return torch.cat([self.segment.embed(torch.from_numpy(c).to(device)) for c in chunks]) \
+            if chunks else torch.zeros(0, self.segment.fc.in_features, device=device)
 
     @torch.no_grad()
     def segment_outputs(self, features: np.ndarray, starts: list[int]) -> np.ndarray:
         """Coverage (S,) of the windows [s, s + T) of one video's (N, F) features."""
         embedded = self.segment_embeddings(features, starts)
-        return self.segment.head(embedded).numpy().astype(np.float64)
+        return self.segment.head(embedded).cpu().numpy().astype(np.float64)
 
     def save(self, path: Path, step: int = 0) -> None:
         save_checkpoint(path, {"frame": self.frame, "segment": self.segment},
                         self.config.to_dict(), step, kind="coverage")
 
 
-def load_coverage_model(path: Path, preset: str | None = None) -> CoverageModel:
-    """A trained coverage model in eval mode; checks its preset if one is given."""
-    return load_model(path, "coverage", CoverageConfig, CoverageModel, preset)
+def load_coverage_model(path: Path, preset: str | None = None,
+                        device: torch.device | str = "cpu") -> CoverageModel:
+    """A trained coverage model in eval mode on `device`; checks its preset if one is given."""
+    return load_model(path, "coverage", CoverageConfig, CoverageModel, preset).to(device)

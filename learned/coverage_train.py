@@ -23,6 +23,7 @@ from learned.config import CoverageConfig
 from learned.coverage_data import ProcedureSamples, file_tag, procedure_samples
 from learned.coverage_eval import Predictions, coverage_metrics, format_table, scatter_plots
 from learned.coverage_nets import CoverageModel, load_coverage_model
+from learned.device import device_of
 from learned.model import load_depth_model
 from learned.train import expand_inputs
 
@@ -69,7 +70,7 @@ def train_frame_net(model: CoverageModel, samples: list[ProcedureSamples], log,
     Depth maps are flipped left-right and up-down at random, the travel direction's x and y
     with them: a mirrored colon is covered alike.
     """
-    config = model.config
+    config, device = model.config, device_of(model)
     inputs = np.concatenate([s.inputs for s in samples])
     travel = np.concatenate([s.travel for s in samples])
     if travel.shape[1] != config.travel_size:
@@ -90,10 +91,10 @@ def train_frame_net(model: CoverageModel, samples: list[ProcedureSamples], log,
         if step % steps_per_epoch == 0:
             order = rng.permutation(len(inputs))
         ids = np.sort(order[(step % steps_per_epoch) * config.frame_batch:][:config.frame_batch])
-        x, m = mirrored(torch.from_numpy(inputs[ids].astype(np.float32)),
-                        torch.from_numpy(travel[ids]),
-                        torch.from_numpy(rng.random((len(ids), 2)) < 0.5))
-        y = torch.from_numpy(labels[ids])
+        x, m = mirrored(torch.from_numpy(inputs[ids].astype(np.float32)).to(device),
+                        torch.from_numpy(travel[ids]).to(device),
+                        torch.from_numpy(rng.random((len(ids), 2)) < 0.5).to(device))
+        y = torch.from_numpy(labels[ids]).to(device)
         ok = torch.isfinite(y)
         running.append(_optimise((model.frame(x, m)[ok] - y[ok]).square().mean(), optimizer,
                                  schedule))
@@ -113,7 +114,7 @@ def train_segment_net(model: CoverageModel, samples: list[ProcedureSamples],
     Windows are reversed in time at random (coverage does not depend on frame order). Sets the
     feature standardisation and the CORAL source statistics from the training windows.
     """
-    config, net = model.config, model.segment
+    config, net, device = model.config, model.segment, device_of(model)
     every = np.concatenate(features)
     net.feature_mean.copy_(torch.from_numpy(every.mean(0)))
     net.feature_std.copy_(torch.from_numpy(every.std(0) + 1e-6))
@@ -127,7 +128,7 @@ def train_segment_net(model: CoverageModel, samples: list[ProcedureSamples],
 
     def stack(picks) -> torch.Tensor:
         return torch.from_numpy(np.stack([features[windows[i][0]][windows[i][1]:][:T]
-                                          for i in picks]).astype(np.float32))
+                                          for i in picks]).astype(np.float32)).to(device)
 
     steps_per_epoch = max(1, len(windows) // config.segment_batch)
     total = steps_per_epoch * config.segment_epochs
@@ -135,7 +136,7 @@ def train_segment_net(model: CoverageModel, samples: list[ProcedureSamples],
                                   weight_decay=config.weight_decay)
     schedule = torch.optim.lr_scheduler.CosineAnnealingLR(optimizer, total)
     rng = np.random.default_rng([config.seed, 2])
-    targets = torch.tensor([w[2] for w in windows], dtype=torch.float32)
+    targets = torch.tensor([w[2] for w in windows], dtype=torch.float32, device=device)
     net.train()
     running, bar = [], tqdm(total=total, desc="stage 2 (per segment)", disable=not progress)
     for step in range(total):
@@ -143,7 +144,7 @@ def train_segment_net(model: CoverageModel, samples: list[ProcedureSamples],
             order = rng.permutation(len(windows))
         picks = order[(step % steps_per_epoch) * config.segment_batch:][:config.segment_batch]
         x = stack(picks)
-        reverse = torch.from_numpy(rng.random(len(picks)) < 0.5)
+        reverse = torch.from_numpy(rng.random(len(picks)) < 0.5).to(device)
         x = torch.where(reverse[:, None, None], x.flip(1), x)
         running.append(_optimise((net(x) - targets[picks]).square().mean(), optimizer,
                                  schedule))
@@ -161,10 +162,10 @@ def train_segment_net(model: CoverageModel, samples: list[ProcedureSamples],
 
 
 def fit_model(samples: list[ProcedureSamples], config: CoverageConfig, log,
-              progress: bool = False) -> CoverageModel:
-    """Both stages on the given procedures."""
+              progress: bool = False, device: torch.device | str = "cpu") -> CoverageModel:
+    """Both stages on the given procedures, on `device`."""
     torch.manual_seed(config.seed)
-    model = CoverageModel(config)
+    model = CoverageModel(config).to(device)
     train_frame_net(model, samples, log, progress)
     features = [model.frame_outputs(s.inputs, s.travel)[1] for s in samples]
     train_segment_net(model, samples, features, log, progress)
@@ -188,20 +189,24 @@ def evaluate(model: CoverageModel, samples: list[ProcedureSamples],
 
 
 def load_samples(data: list[Path], config: CoverageConfig, depth_checkpoint: Path,
-                 progress: bool = False) -> list[ProcedureSamples]:
-    """Samples of every simulated procedure under the given paths."""
+                 progress: bool = False, device: torch.device | str = "cpu"
+                 ) -> list[ProcedureSamples]:
+    """Samples of every simulated procedure under the given paths (the depth network on
+    `device`)."""
     paths = expand_inputs(data)
     depth_model = None
     if config.input_depth == "predicted" or config.travel_gap:
-        depth_model = load_depth_model(depth_checkpoint)
+        depth_model = load_depth_model(depth_checkpoint, device=device)
     tag = file_tag(depth_checkpoint)
     return [procedure_samples(p, config, depth_model, tag, progress)
             for p in tqdm(paths, desc="inputs and labels", disable=not progress)]
 
 
 def train_coverage(data: list[Path], out: Path, config: CoverageConfig,
-                   depth_checkpoint: Path, progress: bool = True) -> Path:
-    """Cross-validate, then train on everything; returns the final model's path."""
+                   depth_checkpoint: Path, progress: bool = True,
+                   device: torch.device | str = "cpu") -> Path:
+    """Cross-validate, then train on everything, on `device`; returns the final model's
+    path."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     record_path = out / "record.json"
@@ -210,7 +215,7 @@ def train_coverage(data: list[Path], out: Path, config: CoverageConfig,
         raise InputError(f"{out} holds a run with another config; resume it with the same "
                          f"options or use another --out")
     started = time.time()
-    samples = load_samples(data, config, depth_checkpoint, progress)
+    samples = load_samples(data, config, depth_checkpoint, progress, device)
     if previous and (previous["procedures"] != [s.name for s in samples]
                      or previous["depth_checkpoint"]["sha256_12"] != file_tag(depth_checkpoint)):
         raise InputError(f"{out} holds a run on other procedures or another depth model; use "
@@ -233,10 +238,10 @@ def train_coverage(data: list[Path], out: Path, config: CoverageConfig,
         path = out / f"fold-{k}.safetensors"
         train = [s for i, s in enumerate(samples) if i not in set(held_out)]
         if path.is_file():
-            model = load_coverage_model(path)
+            model = load_coverage_model(path, device=device)
         else:
             tic = time.time()
-            model = fit_model(train, config, lambda e, k=k: log(e, str(k)), progress)
+            model = fit_model(train, config, lambda e, k=k: log(e, str(k)), progress, device)
             model.save(path)
             record["seconds"][f"fold_{k}"] = round(time.time() - tic, 1)
         evaluate(model, [samples[i] for i in held_out], cv)
@@ -251,7 +256,7 @@ def train_coverage(data: list[Path], out: Path, config: CoverageConfig,
     final = out / "model.safetensors"
     if not final.is_file():
         tic = time.time()
-        fit_model(samples, config, log, progress).save(final)
+        fit_model(samples, config, log, progress, device).save(final)
         record["seconds"]["final"] = round(time.time() - tic, 1)
     record["seconds"]["total_this_call"] = round(time.time() - started, 1)
     record_path.write_text(json.dumps(record, indent=1) + "\n")

@@ -10,6 +10,7 @@ import numpy as np
 import torch
 
 from hybrid.types import InputError
+from learned.device import device_of
 from learned.frames import FrameSequence
 from learned.infer import infer_sequence
 from learned.metrics import (
@@ -36,7 +37,8 @@ def evaluate_sequence(model: DepthModel, seq: FrameSequence, depth_frames: int =
     result = infer_sequence(model, seq, frames=window)
     picks = np.linspace(0, seq.num_frames - 1, depth_frames).round().astype(int)
     with torch.no_grad():
-        depths = model.depth(to_tensor(np.stack([seq.frame(t) for t in picks])))[:, 0].numpy()
+        depths = model.depth(to_tensor(np.stack([seq.frame(t) for t in picks]),
+                                        device_of(model)))[:, 0].cpu().numpy()
     per_frame = []
     for t, pred in zip(picks, depths, strict=True):
         gt = seq.depth(t)

@@ -21,6 +21,7 @@ import torch
 from tqdm import tqdm
 
 from hybrid.types import Camera, InputError, chain_poses
+from learned.device import device_of
 from learned.frames import Crop, FrameSequence
 from learned.geometry import transform_from
 from learned.model import DepthModel, to_tensor
@@ -56,13 +57,13 @@ def infer_sequence(model: DepthModel, seq: FrameSequence, batch: int = 16,
     for start in tqdm(range(frames.start, frames.stop, batch), desc=f"depth {seq.name}",
                       disable=not progress, unit="batch"):
         ids = range(start, min(start + batch, frames.stop))
-        images = to_tensor(np.stack([seq.frame(i) for i in ids]))
-        depth.append(model.depth(images)[:, 0].numpy())
+        images = to_tensor(np.stack([seq.frame(i) for i in ids]), device_of(model))
+        depth.append(model.depth(images)[:, 0].cpu().numpy())
         chain = images if previous is None else torch.cat([previous, images])
         if len(chain) > 1:
             T, K = _pair_transforms(model, chain[:-1], chain[1:])
             relative.append(T)
-            K_pairs.append(K.numpy())
+            K_pairs.append(K.cpu().numpy())
         previous = images[-1:]
     return DepthOutput(np.concatenate(depth), np.concatenate(relative),
                        np.concatenate(K_pairs).astype(np.float64))
@@ -87,7 +88,8 @@ def relative_poses(model: DepthModel, seq: FrameSequence, gaps: tuple[int, ...],
     for start in tqdm(range(frames.start, frames.stop, batch), desc=f"motion {seq.name}",
                       disable=not progress, unit="batch"):
         stop = min(start + batch + max(gaps), frames.stop)
-        images = to_tensor(np.stack([seq.frame(i) for i in range(start, stop)]))
+        images = to_tensor(np.stack([seq.frame(i) for i in range(start, stop)]),
+                           device_of(model))
         for g in gaps:
             firsts = min(batch, len(images) - g)
             if firsts <= 0:
@@ -108,8 +110,8 @@ def predicted_depth(model: DepthModel, seq: FrameSequence, batch: int = 32,
     for start in tqdm(range(0, seq.num_frames, batch), desc=f"depth {Path(seq.name).name}",
                       unit="batch", disable=not progress):
         ids = range(start, min(start + batch, seq.num_frames))
-        images = to_tensor(np.stack([seq.frame(i) for i in ids]))
-        out[ids.start:ids.stop] = model.depth(images)[:, 0].numpy()
+        images = to_tensor(np.stack([seq.frame(i) for i in ids]), device_of(model))
+        out[ids.start:ids.stop] = model.depth(images)[:, 0].cpu().numpy()
     return out
 
 
@@ -120,7 +122,7 @@ def _pair_transforms(model: DepthModel, a: torch.Tensor, b: torch.Tensor
     r_ab, t_ab, r_ba, t_ba, K = model.pair_motion(a, b)
     forward = transform_from(r_ab, t_ab).double()
     backward = torch.linalg.inv(transform_from(r_ba, t_ba).double())
-    return _mean_transform(forward, backward).numpy(), K
+    return _mean_transform(forward, backward).cpu().numpy(), K
 
 
 def _mean_transform(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:

@@ -56,11 +56,14 @@ class DepthModel(nn.Module):
                                    [depths[:, 0], depths[:, 2]], motions, K, region, self.config)
 
 
-def to_tensor(images: np.ndarray) -> torch.Tensor:
-    """RGB uint8 (..., H, W, 3) -> float (..., 3, H, W) in [0, 1]."""
-    return torch.from_numpy(np.ascontiguousarray(images)).movedim(-1, -3).float() / 255.0
+def to_tensor(images: np.ndarray, device: torch.device | str = "cpu") -> torch.Tensor:
+    """RGB uint8 (..., H, W, 3) -> float (..., 3, H, W) in [0, 1], on `device`."""
+    images = torch.from_numpy(np.ascontiguousarray(images)).to(device)
+    return images.movedim(-1, -3).float() / 255.0
 
 
-def load_depth_model(path: Path, preset: str | None = None) -> DepthModel:
-    """A trained model in eval mode; checks that it is of the expected preset if one is given."""
-    return load_model(path, "depth", DepthConfig, DepthModel, preset)
+def load_depth_model(path: Path, preset: str | None = None,
+                     device: torch.device | str = "cpu") -> DepthModel:
+    """A trained model in eval mode on `device`; checks that it is of the expected preset if
+    one is given."""
+    return load_model(path, "depth", DepthConfig, DepthModel, preset).to(device)

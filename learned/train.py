@@ -28,6 +28,7 @@ from learned.checkpoint import (
     save_checkpoint,
 )
 from learned.config import DEPTH_PRESETS, DepthConfig
+from learned.device import device_of
 from learned.frames import VIDEO_SUFFIXES, FrameSequence, open_sequence
 from learned.metrics import intrinsics_error, mre
 from learned.model import DepthModel, load_depth_model, to_tensor
@@ -65,8 +66,9 @@ class TripletSampler:
         if self.counts.sum() == 0:
             raise InputError("inputs are too short: each needs more than 2 x pair gap frames")
 
-    def batch(self, size: int, rng: np.random.Generator) -> tuple[torch.Tensor, torch.Tensor]:
-        """Frames (B, 3, 3, H, W) in [0, 1] and image regions (B, 1, H, W)."""
+    def batch(self, size: int, rng: np.random.Generator, device: torch.device | str = "cpu"
+              ) -> tuple[torch.Tensor, torch.Tensor]:
+        """Frames (B, 3, 3, H, W) in [0, 1] and image regions (B, 1, H, W), on `device`."""
         picks = rng.choice(self.counts.sum(), size)
         bounds = np.cumsum(self.counts)
         frames, regions = [], []
@@ -76,7 +78,8 @@ class TripletSampler:
             t = int(pick - (bounds[k] - self.counts[k])) + gap
             frames.append(np.stack([seq.frame(t - gap), seq.frame(t), seq.frame(t + gap)]))
             regions.append(seq.region)
-        return to_tensor(np.stack(frames)), torch.from_numpy(np.stack(regions))[:, None]
+        return (to_tensor(np.stack(frames), device),
+                torch.from_numpy(np.stack(regions))[:, None].to(device))
 
 
 def validate(model: DepthModel, sequences: list[FrameSequence], frames_per_sequence: int = 8
@@ -88,11 +91,11 @@ def validate(model: DepthModel, sequences: list[FrameSequence], frames_per_seque
         for seq in sequences:
             gap = max(1, round(seq.fps * model.config.pair_gap_s))
             picks = np.linspace(gap, seq.num_frames - 1, frames_per_sequence).round().astype(int)
-            images = to_tensor(np.stack([seq.frame(t) for t in picks]))
-            depth = model.depth(images)[:, 0].numpy()
+            images = to_tensor(np.stack([seq.frame(t) for t in picks]), device_of(model))
+            depth = model.depth(images)[:, 0].cpu().numpy()
             errors += [mre(d, seq.depth(t), seq.region) for d, t in zip(depth, picks, strict=True)]
-            previous = to_tensor(np.stack([seq.frame(t - gap) for t in picks]))
-            K = model.pair_motion(previous, images)[-1].mean(0).numpy()
+            previous = to_tensor(np.stack([seq.frame(t - gap) for t in picks]), device_of(model))
+            K = model.pair_motion(previous, images)[-1].mean(0).cpu().numpy()
             err = intrinsics_error(K, seq.camera.K, seq.camera.width, seq.camera.height)
             focal.append(0.5 * (err["fx_rel"] + err["fy_rel"]))
     model.train()
@@ -101,8 +104,8 @@ def validate(model: DepthModel, sequences: list[FrameSequence], frames_per_seque
 
 def train_depth(data: list[Path], out: Path, config: DepthConfig, val: list[Path] = (),
                 log_every: int = 50, val_every: int = 500, save_every: int = 250,
-                progress: bool = True) -> Path:
-    """Train (or resume) and return the checkpoint path."""
+                progress: bool = True, device: torch.device | str = "cpu") -> Path:
+    """Train (or resume) on `device` and return the checkpoint path."""
     out = Path(out)
     path = out / CHECKPOINT
     if not path.is_file() and config.init and not Path(config.init).is_file():
@@ -121,13 +124,14 @@ def train_depth(data: list[Path], out: Path, config: DepthConfig, val: list[Path
     val_sequences = [s for s in (open_sequence(p, size) for p in expand_inputs(list(val)))
                      if s.camera is not None]
     torch.manual_seed(config.seed)
-    model = DepthModel(config)
+    model = DepthModel(config).to(device)
     optimizer = torch.optim.Adam(model.parameters(), lr=config.learning_rate)
     if tensors is not None:
         load_modules(tensors, {"depth": model.depth, "motion": model.motion}, path)
         load_optimizer(tensors, meta, optimizer)
     elif config.init:
-        model.load_state_dict(load_depth_model(Path(config.init), config.preset).state_dict())
+        model.load_state_dict(load_depth_model(Path(config.init), config.preset, device)
+                              .state_dict())
     (out / "config.json").write_text(json.dumps(config.to_dict(), indent=1) + "\n")
     metrics_log = (out / "metrics.jsonl").open("a")
     model.train()
@@ -138,8 +142,7 @@ def train_depth(data: list[Path], out: Path, config: DepthConfig, val: list[Path
     while step < config.steps:
         rng = np.random.default_rng([config.seed, step])  # resumable sampling
         torch.manual_seed(config.seed * 1_000_003 + step)  # and resumable noise in the loss
-        frames, region = sampler.batch(config.batch_size, rng)
-        terms = model.loss(frames, region)
+        terms = model.loss(*sampler.batch(config.batch_size, rng, device))
         optimizer.zero_grad()
         terms.total.backward()
         for group in optimizer.param_groups:
