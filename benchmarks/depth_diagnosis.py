@@ -7,8 +7,9 @@ On simulated procedures, for triplets every `--every` frames:
   2. The model's systematic errors: the slope of log(predicted depth) against log(true depth)
      per frame (1: no compression); the relative depth error (median scaling per frame) of the
      nearest quarter, the middle half and the farthest tenth of the pixels by true depth; the
-     ratio of predicted to true rotation angle over pairs turning more than 2 degrees, and of
-     predicted to true fx.
+     ratio of predicted to true rotation angle over pairs turning more than 2 degrees, the
+     least-squares slope of predicted on true rotation about each camera axis (x right, y
+     down, z forward), and the ratio of predicted to true fx.
   3. For each number of coarse levels, the loss at the truth and its ratio when the truth is
      spoiled in the model's ways: depth compressed to gt^0.63 or gt^0.8, focal length x0.8,
      rotation angles x0.65 (depth compressed about the target's median depth, so its scale
@@ -33,6 +34,7 @@ from focal_scan import true_motion
 
 from hybrid.dataset import Procedure, list_procedures
 from learned.config import DepthConfig
+from learned.flow import batch_flows
 from learned.losses import view_synthesis_loss
 from learned.model import load_depth_model, to_tensor
 
@@ -65,12 +67,16 @@ def loss_of(frames, depths, motions, K, config: DepthConfig, power: float = 1.0,
     depths = [d**power * median ** (1 - power) for d in depths]
     region = torch.ones(1, 1, *frames.shape[-2:])
     torch.manual_seed(0)  # the same auto-mask tie-breaking everywhere
+    flows = [batch_flows(frames[:, 1], frames[:, k]) for k in (0, 2)] \
+        if config.w_flow > 0 else None
     return view_synthesis_loss(frames[:, 1], [frames[:, 0], frames[:, 2]], depths[1],
-                               [depths[0], depths[2]], motions, K, region, config).as_floats()
+                               [depths[0], depths[2]], motions, K, region, config,
+                               flows).as_floats()
 
 
 def systematic_errors(model, procs: list[Procedure], gap_s: float) -> dict[str, float]:
     slopes, rotations, focals, truths, errors = [], [], [], [], []
+    axes_pred, axes_true = [], []
     with torch.no_grad():
         for proc in procs:
             gap = max(1, round(proc.camera.fps * gap_s))
@@ -79,7 +85,11 @@ def systematic_errors(model, procs: list[Procedure], gap_s: float) -> dict[str, 
             b = torch.stack([to_tensor(proc.rgb(t)) for t in ts])
             rotation, _, _, _, K = model.pair_motion(a, b)
             focals.append(float(K[:, 0, 0].median()) / proc.camera.fx)
-            true = np.array([true_motion(proc.poses, t - gap, t)[0].norm().item() for t in ts])
+            vectors = np.concatenate([true_motion(proc.poses, t - gap, t)[0].numpy()
+                                      for t in ts])
+            axes_pred.append(rotation.numpy())
+            axes_true.append(vectors)
+            true = np.linalg.norm(vectors, axis=1)
             turning = true > np.radians(2.0)
             rotations += list(rotation.norm(dim=1).numpy()[turning] / true[turning])
             depth = model.depth(b[::10])[:, 0].numpy()
@@ -92,11 +102,16 @@ def systematic_errors(model, procs: list[Procedure], gap_s: float) -> dict[str, 
                 errors.append(np.abs(scaled - gt[ok]) / gt[ok])
     truth, error = np.concatenate(truths), np.concatenate(errors)
     q25, q75, q90 = np.percentile(truth, [25, 75, 90])
+    axes_pred, axes_true = np.concatenate(axes_pred), np.concatenate(axes_true)
+    axis_slopes = {f"rotation slope {axis}": float(axes_pred[:, k] @ axes_true[:, k]
+                                                   / (axes_true[:, k] @ axes_true[:, k]))
+                   for k, axis in enumerate("xyz")}
     return {"log-log slope": float(np.median(slopes)),
             "error nearest 25%": float(error[truth < q25].mean()),
             "error middle 50%": float(error[(truth >= q25) & (truth < q75)].mean()),
             "error farthest 10%": float(error[truth >= q90].mean()),
-            "rotation ratio": float(np.median(rotations)), "fx ratio": float(np.mean(focals))}
+            "rotation ratio": float(np.median(rotations)), **axis_slopes,
+            "fx ratio": float(np.mean(focals))}
 
 
 def main() -> None:

@@ -58,6 +58,11 @@ class DepthConfig:
     """Edge-aware smoothness of mean-normalised disparity."""
     w_depth_consistency: float = 1e-2
     """Occlusion-aware depth consistency between target and sources."""
+    w_flow: float = 0.0
+    """Rigid flow of the predicted motion and K (depth held fixed) against OpenCV's DIS optical
+    flow (learned.flow), which reaches farther than the photometric loss (0: off)."""
+    flow_scale_px: float = 2.0
+    """Scale of the Cauchy penalty of the flow term (pixels)."""
     w_rotation_cycle: float = 1e-3
     """Forward and backward rotations compose to the identity."""
     w_translation_cycle: float = 1e-2

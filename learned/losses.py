@@ -1,10 +1,10 @@
 """View-synthesis losses (paper eq. 1; Gordon et al. 2019; monodepth2).
 
 photometric (L1 + SSIM, optionally also at coarser resolutions) with per-pixel minimum over
-sources and auto-masking,
-occlusion-aware depth consistency, rotation/translation cycle consistency, edge-aware
-smoothness. Endoscopy helps: per-pair brightness match, specular and border masks, and an
-optional inverse-square correction for the light that moves with the camera.
+sources and auto-masking, occlusion-aware depth consistency, rotation/translation cycle
+consistency, edge-aware smoothness, and optionally rigid flow against classical optical flow.
+Endoscopy helps: per-pair brightness match, specular and border masks, and an optional
+inverse-square correction for the light that moves with the camera.
 """
 
 from __future__ import annotations
@@ -92,6 +92,24 @@ def specular(image: torch.Tensor) -> torch.Tensor:
     return torch.nn.functional.max_pool2d(bright, 3, 1, 1) > 0
 
 
+def flow_error(where: torch.Tensor, flow: torch.Tensor, trusted: torch.Tensor,
+               scale_px: float) -> torch.Tensor:
+    """Mean Cauchy distance log(1 + (d / scale_px)^2) between where target pixels land by the
+    predicted depth and motion, `where` (B, H, W, 2), and where the optical flow (B, H, W, 2)
+    takes them, over the trusted pixels (B, H, W) whose flow lands inside the image. The
+    Cauchy penalty keeps pulling from far away and shrugs off the flow's gross errors."""
+    height, width = flow.shape[1:3]
+    pixels = torch.stack(torch.meshgrid(torch.arange(width, device=flow.device),
+                                        torch.arange(height, device=flow.device),
+                                        indexing="xy"), -1).to(flow.dtype)
+    landing = pixels + flow
+    keep = trusted & (landing[..., 0] >= 0) & (landing[..., 0] <= width - 1) \
+        & (landing[..., 1] >= 0) & (landing[..., 1] <= height - 1)
+    distance = (where - landing).norm(dim=-1)
+    cost = torch.log1p((distance / scale_px) ** 2)
+    return (cost * keep).sum() / keep.sum().clamp(min=1)
+
+
 @dataclass
 class LossTerms:
     total: torch.Tensor
@@ -100,6 +118,7 @@ class LossTerms:
     depth_consistency: torch.Tensor
     rotation_cycle: torch.Tensor
     translation_cycle: torch.Tensor
+    flow: torch.Tensor
 
     def as_floats(self) -> dict[str, float]:
         return {k: float(v.detach()) for k, v in vars(self).items()}
@@ -114,19 +133,24 @@ def view_synthesis_loss(
     K: torch.Tensor,
     region: torch.Tensor,
     config: DepthConfig,
+    flows: list[tuple[torch.Tensor, torch.Tensor]] | None = None,
 ) -> LossTerms:
     """Loss of one batch of (target, sources) with predicted depths, motions and K.
 
     motions[k] = (rotation, translation) target->source and (rotation, translation)
     source->target, each (B, 3). region (B, 1, H, W) marks the endoscope's image area.
+    flows[k] = (optical flow target -> source k (B, H, W, 2), trusted (B, H, W)), needed when
+    config.w_flow > 0 (learned.flow.batch_flows).
     """
+    if config.w_flow > 0 and flows is None:
+        raise ValueError("w_flow > 0 needs the optical flows of the target to each source")
     usable = region.bool()
     if config.specular_mask:
         usable = usable & ~specular(target)
     errors, identity_errors = [], []
-    consistency, rot_cycle, trans_cycle = [], [], []
-    for source, source_depth, (r_ts, t_ts, r_st, t_st) in zip(
-            sources, source_depths, motions, strict=True):
+    consistency, rot_cycle, trans_cycle, flow_errors = [], [], [], []
+    for k, (source, source_depth, (r_ts, t_ts, r_st, t_st)) in enumerate(zip(
+            sources, source_depths, motions, strict=True)):
         T_ts = transform_from(r_ts, t_ts)
         T_st = transform_from(r_st, t_st)
         w = warp(source, target_depth, T_ts, K, source_depth)
@@ -144,6 +168,9 @@ def view_synthesis_loss(
         errors.append(torch.where(compared, error, torch.full_like(error, 1e3)))
         identity_errors.append(_identity_error(source, target, config))
         consistency.append(_depth_consistency(w, mask))
+        if config.w_flow > 0:  # steers motion and K only: the flow's errors would bend depth
+            rigid = warp(source, target_depth.detach(), T_ts, K).where
+            flow_errors.append(flow_error(rigid, *flows[k], config.flow_scale_px))
         cycle = T_st @ T_ts
         eye = torch.eye(3, device=cycle.device, dtype=cycle.dtype)
         rot_cycle.append(((cycle[:, :3, :3] - eye) ** 2).mean())
@@ -163,12 +190,14 @@ def view_synthesis_loss(
     depth_consistency = torch.stack(consistency).mean()
     rotation_cycle = torch.stack(rot_cycle).mean()
     translation_cycle = torch.stack(trans_cycle).mean()
+    flow = torch.stack(flow_errors).mean() if flow_errors else torch.zeros_like(photometric)
     total = (photometric + config.w_smooth * smoothness
              + config.w_depth_consistency * depth_consistency
              + config.w_rotation_cycle * rotation_cycle
-             + config.w_translation_cycle * translation_cycle)
+             + config.w_translation_cycle * translation_cycle
+             + config.w_flow * flow)
     return LossTerms(total, photometric, smoothness, depth_consistency, rotation_cycle,
-                     translation_cycle)
+                     translation_cycle, flow)
 
 
 def _relit(image: torch.Tensor, ray_ratio: torch.Tensor, config: DepthConfig) -> torch.Tensor:
