@@ -314,14 +314,14 @@ def depth(
     """Per-frame depth, relative poses and one intrinsics estimate for an input."""
     from learned.device import pick_device
     from learned.frames import open_sequence
-    from learned.infer import infer_sequence, write_depth_outputs
+    from learned.infer import infer_to_folder
     from learned.model import load_depth_model
 
     model = load_depth_model(checkpoint or _shipped_checkpoint(), device=pick_device(device))
     if fps is not None and not fps > 0:
         raise InputError(f"--fps must be positive, got {fps}")
     seq = open_sequence(input, (model.config.height, model.config.width), _read_mask(mask), fps)
-    write_depth_outputs(out, seq, infer_sequence(model, seq, progress=True))
+    infer_to_folder(model, seq, out, progress=True)
     typer.echo(str(out))
 
 

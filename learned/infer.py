@@ -27,12 +27,25 @@ from learned.geometry import transform_from
 from learned.model import DepthModel, to_tensor
 
 
+class DepthFiles:
+    """depth/NNNNNN.npy files, written as slices of frames are assigned (infer_sequence's
+    depth_out), so that a long video's depth never sits in memory."""
+
+    def __init__(self, folder: Path):
+        self.folder = Path(folder)
+        self.folder.mkdir(parents=True, exist_ok=True)
+
+    def __setitem__(self, frames: slice, depth: np.ndarray) -> None:
+        for i, d in zip(range(frames.start, frames.stop), depth, strict=True):
+            np.save(self.folder / f"{i:06d}.npy", d.astype(np.float32))
+
+
 @dataclass
 class DepthOutput:
     """Everything inferred for one input, at the network's size."""
 
-    depth: np.ndarray
-    """(N, H, W) float32."""
+    depth: np.ndarray | DepthFiles
+    """(N, H, W) float32, or the files it was written to."""
     relative: np.ndarray
     """(N-1, 4, 4) float64, camera t -> camera t+1."""
     K_pairs: np.ndarray
@@ -46,8 +59,10 @@ class DepthOutput:
 
 @torch.no_grad()
 def infer_sequence(model: DepthModel, seq: FrameSequence, batch: int = 16,
-                   progress: bool = False, frames: range | None = None) -> DepthOutput:
-    """Run the networks over consecutive frames of seq (all, or the given range)."""
+                   progress: bool = False, frames: range | None = None,
+                   depth_out: DepthFiles | None = None) -> DepthOutput:
+    """Run the networks over consecutive frames of seq (all, or the given range). Depth is
+    kept in the result, or written into depth_out (index 0: the range's first frame)."""
     model.eval()
     frames = range(seq.num_frames) if frames is None else frames
     if len(frames) < 2:
@@ -58,15 +73,19 @@ def infer_sequence(model: DepthModel, seq: FrameSequence, batch: int = 16,
                       disable=not progress, unit="batch"):
         ids = range(start, min(start + batch, frames.stop))
         images = to_tensor(np.stack([seq.frame(i) for i in ids]), device_of(model))
-        depth.append(model.depth(images)[:, 0].cpu().numpy())
+        predicted = model.depth(images)[:, 0].cpu().numpy()
+        if depth_out is None:
+            depth.append(predicted)
+        else:
+            depth_out[ids.start - frames.start:ids.stop - frames.start] = predicted
         chain = images if previous is None else torch.cat([previous, images])
         if len(chain) > 1:
             T, K = _pair_transforms(model, chain[:-1], chain[1:])
             relative.append(T)
             K_pairs.append(K.cpu().numpy())
         previous = images[-1:]
-    return DepthOutput(np.concatenate(depth), np.concatenate(relative),
-                       np.concatenate(K_pairs).astype(np.float64))
+    return DepthOutput(np.concatenate(depth) if depth_out is None else depth_out,
+                       np.concatenate(relative), np.concatenate(K_pairs).astype(np.float64))
 
 
 @torch.no_grad()
@@ -157,12 +176,12 @@ def aggregate_intrinsics(K_pairs: np.ndarray, size: tuple[int, int], crop: Crop,
     return out
 
 
-def write_depth_outputs(out: Path, seq: FrameSequence, result: DepthOutput) -> None:
-    """Write the files listed in the module docstring."""
+def infer_to_folder(model: DepthModel, seq: FrameSequence, out: Path, progress: bool = False
+                    ) -> None:
+    """Infer and write the files listed in the module docstring, depth streamed frame by
+    frame."""
     out = Path(out)
-    (out / "depth").mkdir(parents=True, exist_ok=True)
-    for i, d in enumerate(result.depth):
-        np.save(out / "depth" / f"{i:06d}.npy", d.astype(np.float32))
+    result = infer_sequence(model, seq, progress=progress, depth_out=DepthFiles(out / "depth"))
     cv2.imwrite(str(out / "region.png"), seq.region.astype(np.uint8) * 255)
     np.save(out / "relative_poses.npy", result.relative)
     np.save(out / "poses.npy", result.poses)

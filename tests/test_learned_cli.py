@@ -24,6 +24,7 @@ from hybrid.types import Camera, InputError
 from learned.checkpoint import save_checkpoint
 from learned.config import DEPTH_PRESETS
 from learned.frames import detect_region, open_sequence
+from learned.infer import infer_sequence
 from learned.model import DepthModel, load_depth_model
 
 runner = CliRunner()
@@ -182,6 +183,19 @@ def test_depth_runs_on_a_folder_of_images(tmp_path, tiny_checkpoint):
     assert poses.shape == (3, 4, 4) and np.array_equal(poses[0], np.eye(4))
     intrinsics = json.loads((out / "intrinsics.json").read_text())
     assert (intrinsics["width"], intrinsics["height"], intrinsics["pairs"]) == (120, 100, 2)
+
+
+def test_depth_written_frame_by_frame_equals_the_depth_in_memory(tmp_path, tiny_checkpoint):
+    """20 frames span two inference batches of 16: each file holds its own frame's depth."""
+    folder = write_images(tmp_path / "frames", [disc_frame(seed=s) for s in range(20)])
+    result = run_depth(folder, tmp_path / "out", tiny_checkpoint)
+    assert result.exit_code == 0, result.output
+    model = load_depth_model(tiny_checkpoint)
+    expected = infer_sequence(model, open_sequence(folder, (TINY.height, TINY.width)))
+    written = np.stack([np.load(tmp_path / "out" / "depth" / f"{i:06d}.npy") for i in range(20)])
+    np.testing.assert_allclose(written, expected.depth, rtol=1e-5)
+    np.testing.assert_allclose(np.load(tmp_path / "out" / "relative_poses.npy"),
+                               expected.relative, atol=1e-6)
 
 
 @pytest.mark.parametrize("extra, fps", [((), 25.0), (("--fps", "12.5"), 12.5)])
