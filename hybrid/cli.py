@@ -281,6 +281,10 @@ def train_depth(
     set_: Annotated[list[str] | None, typer.Option(
         "--set", help="Override a config field, e.g. --set pair_gap_s=0.6 (see learned/config.py)."
     )] = None,
+    fps: Annotated[float | None, typer.Option(help="Frame rate of the training videos or image "
+                                              "folders, if theirs is missing or wrong (not for "
+                                              "simulated procedures; give it again on resume)."
+                                              )] = None,
     device: Device = "auto",
 ):
     """Train depth, ego-motion and intrinsics by view synthesis; resumes from --out."""
@@ -294,7 +298,9 @@ def train_depth(
                               **parse_overrides(set_ or []))
     except ValueError as err:
         raise InputError(str(err)) from err
-    typer.echo(str(run(data, out, config, val or [], device=pick_device(device))))
+    if fps is not None and not fps > 0:
+        raise InputError(f"--fps must be positive, got {fps}")
+    typer.echo(str(run(data, out, config, val or [], device=pick_device(device), fps=fps)))
 
 
 @app.command()

@@ -104,8 +104,10 @@ def validate(model: DepthModel, sequences: list[FrameSequence], frames_per_seque
 
 def train_depth(data: list[Path], out: Path, config: DepthConfig, val: list[Path] = (),
                 log_every: int = 50, val_every: int = 500, save_every: int = 250,
-                progress: bool = True, device: torch.device | str = "cpu") -> Path:
-    """Train (or resume) on `device` and return the checkpoint path."""
+                progress: bool = True, device: torch.device | str = "cpu",
+                fps: float | None = None) -> Path:
+    """Train (or resume) on `device` and return the checkpoint path. fps: the frame rate of
+    the training videos and image folders, where theirs is missing or wrong."""
     out = Path(out)
     path = out / CHECKPOINT
     if not path.is_file() and config.init and not Path(config.init).is_file():
@@ -119,7 +121,7 @@ def train_depth(data: list[Path], out: Path, config: DepthConfig, val: list[Path
         log.info("resuming %s at step %d", path, step)
         elapsed = _drop_records_after(out / "metrics.jsonl", step)
     size = (config.height, config.width)
-    sampler = TripletSampler([open_sequence(p, size) for p in expand_inputs(data)],
+    sampler = TripletSampler([open_sequence(p, size, fps=fps) for p in expand_inputs(data)],
                              config.pair_gap_s)
     val_sequences = [s for s in (open_sequence(p, size) for p in expand_inputs(list(val)))
                      if s.camera is not None]

@@ -21,7 +21,7 @@ from typer.testing import CliRunner
 
 from hybrid.cli import app
 from hybrid.types import Camera, InputError
-from learned.checkpoint import save_checkpoint
+from learned.checkpoint import read_checkpoint, save_checkpoint
 from learned.config import DEPTH_PRESETS
 from learned.frames import detect_region, open_sequence
 from learned.infer import infer_sequence
@@ -321,6 +321,17 @@ def test_train_depth_with_missing_input(tmp_path):
     result = runner.invoke(app, ["train-depth", "--data", str(tmp_path / "nowhere"), "--out",
                                  str(tmp_path / "run"), "--steps", "1"])
     assert_clean_error(result, "nowhere")
+
+
+def test_train_depth_takes_the_frame_rate_of_image_folders(tmp_path):
+    """8 images are too few for triplets 0.3 s apart at the default 30 frames/s (9 frames),
+    enough at --fps 10 (3 frames)."""
+    folder = write_images(tmp_path / "frames", [disc_frame(seed=s) for s in range(8)])
+    command = ["train-depth", "--data", str(folder), "--steps", "1", "--device", "cpu"]
+    assert_clean_error(runner.invoke(app, [*command, "--out", str(tmp_path / "a")]), "too short")
+    result = runner.invoke(app, [*command, "--out", str(tmp_path / "b"), "--fps", "10"])
+    assert result.exit_code == 0, result.output
+    assert read_checkpoint(tmp_path / "b" / "checkpoint.safetensors")[1]["step"] == 1
 
 
 def test_train_depth_with_a_missing_init_model(tmp_path):
