@@ -25,9 +25,9 @@ from kornia.geometry.conversions import rotation_matrix_to_axis_angle
 
 from hybrid.dataset import list_procedures
 from learned.config import DepthConfig, parse_overrides
-from learned.flow import dis_flow
-from learned.geometry import transform_from, warp
-from learned.losses import flow_error, view_synthesis_loss
+from learned.flow import batch_flows
+from learned.geometry import transform_from
+from learned.losses import view_synthesis_loss
 
 
 def with_inverse(rotation: torch.Tensor, translation: torch.Tensor) -> tuple[torch.Tensor, ...]:
@@ -36,27 +36,18 @@ def with_inverse(rotation: torch.Tensor, translation: torch.Tensor) -> tuple[tor
     return rotation, translation, rotation_matrix_to_axis_angle(back[:, :3, :3]), back[:, :3, 3]
 
 
-def rgb(image: torch.Tensor) -> np.ndarray:
-    """(3, H, W) in [0, 1] -> RGB uint8 (H, W, 3)."""
-    return (image.permute(1, 2, 0).numpy() * 255).round().astype(np.uint8)
-
-
 def fit(frames, depths, truth, K, config: DepthConfig, iterations: int, start: str,
         lr: tuple[float, float]):
     """The fitted rotations (2, 3) of both sources, and the loss at the truth and at the fit."""
     region = torch.ones(1, 1, *frames.shape[-2:])
-    flows = [[torch.from_numpy(x)[None] for x in dis_flow(rgb(frames[0, 1]), rgb(frames[0, k]))]
-             for k in (0, 2)]
+    flows = [batch_flows(frames[:, 1], frames[:, k]) for k in (0, 2)] \
+        if config.w_flow > 0 else None
 
     def loss(motion: list[torch.Tensor]) -> torch.Tensor:
         pairs = [with_inverse(motion[2 * k], motion[2 * k + 1]) for k in range(2)]
-        total = view_synthesis_loss(frames[:, 1], [frames[:, 0], frames[:, 2]], depths[1],
-                                    [depths[0], depths[2]], pairs, K, region, config).total
-        for (flow, trusted), (r, t, *_) in zip(flows, pairs, strict=True):
-            where = warp(frames[:, 0], depths[1], transform_from(r, t), K).where
-            total = total + config.w_flow * flow_error(where, flow, trusted,
-                                                       config.flow_scale_px)
-        return total
+        return view_synthesis_loss(frames[:, 1], [frames[:, 0], frames[:, 2]], depths[1],
+                                   [depths[0], depths[2]], pairs, K, region, config,
+                                   flows).total
 
     true = [truth[0][0], truth[0][1], truth[1][0], truth[1][1]]
     motion = [(t.clone() if start == "truth" else torch.zeros_like(t)).requires_grad_()

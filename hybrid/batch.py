@@ -10,6 +10,7 @@ from __future__ import annotations
 import csv
 import io
 import json
+import logging
 import os
 import traceback
 from concurrent.futures import ProcessPoolExecutor, as_completed
@@ -20,6 +21,7 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
+from hybrid import LOG_FORMAT
 from hybrid import workdir as W
 from hybrid.pipeline import Models, RunConfig, run_video
 from hybrid.types import InputError
@@ -59,8 +61,10 @@ def run_batch(folder: Path, out: Path, config: RunConfig | None = None, workers:
     else:
         threads = max(1, (os.cpu_count() or 1) // workers)
         # spawned, not forked: a forked worker cannot use CUDA
-        with ProcessPoolExecutor(workers, mp_context=get_context("spawn")) as pool:
-            futures = {pool.submit(_run_one, v, out / v.name, config, None, threads, device): v
+        with ProcessPoolExecutor(workers, mp_context=get_context("spawn"),
+                                 initializer=_start_worker,
+                                 initargs=(threads, logging.getLogger().level)) as pool:
+            futures = {pool.submit(_run_one, v, out / v.name, config, None, device): v
                        for v in videos}
             for future in as_completed(futures):
                 video = futures[future]
@@ -75,12 +79,16 @@ def run_batch(folder: Path, out: Path, config: RunConfig | None = None, workers:
     return out / SUMMARY
 
 
+def _start_worker(threads: int, log_level: int) -> None:
+    """A spawned worker process: its share of the CPU threads and the parent's logging."""
+    torch.set_num_threads(threads)
+    logging.basicConfig(level=log_level, format=LOG_FORMAT)
+
+
 def _run_one(video: Path, work: Path, config: RunConfig, models: Models | None,
-             threads: int | None = None, device: torch.device | str = "cpu") -> dict:
+             device: torch.device | str = "cpu") -> dict:
     """One video (its own Models loaded on `device` if none are given); any failure becomes
     a row with its error (and work/error.txt)."""
-    if threads:
-        torch.set_num_threads(threads)
     error_file = work / W.ERROR
     try:
         done_before = (work / W.REPORT).is_file()

@@ -10,9 +10,11 @@ from typing import Annotated
 
 import typer
 
+from hybrid import LOG_FORMAT
 from hybrid.types import InputError
 
-Device = Annotated[str, typer.Option(help="Device for the networks: auto (the GPU when torch "
+Device = Annotated[str, typer.Option(envvar="C2D2_DEVICE",
+                                    help="Device for the networks: auto (the GPU when torch "
                                     "sees one, else the CPU), cpu, cuda or cuda:N.")]
 
 app = typer.Typer(help="C2D2: detect deficient coverage in colonoscopy video.",
@@ -33,8 +35,7 @@ def _reports_input_errors(command):
 
 @app.callback()
 def main(verbose: Annotated[bool, typer.Option("--verbose", "-v", help="Log progress.")] = False):
-    logging.basicConfig(level=logging.INFO if verbose else logging.WARNING,
-                        format="%(levelname)s %(name)s: %(message)s")
+    logging.basicConfig(level=logging.INFO if verbose else logging.WARNING, format=LOG_FORMAT)
 
 
 @app.command()
@@ -283,7 +284,7 @@ def train_depth(
     )] = None,
     fps: Annotated[float | None, typer.Option(help="Frame rate of the training videos or image "
                                               "folders, if theirs is missing or wrong (not for "
-                                              "simulated procedures; give it again on resume)."
+                                              "simulated procedures; kept by the run)."
                                               )] = None,
     device: Device = "auto",
 ):
@@ -294,13 +295,13 @@ def train_depth(
 
     try:
         config = depth_config(preset, steps=steps, batch_size=batch_size, seed=seed,
-                              init=None if init is None else str(init),
+                              init=None if init is None else str(init), input_fps=fps,
                               **parse_overrides(set_ or []))
     except ValueError as err:
         raise InputError(str(err)) from err
     if fps is not None and not fps > 0:
         raise InputError(f"--fps must be positive, got {fps}")
-    typer.echo(str(run(data, out, config, val or [], device=pick_device(device), fps=fps)))
+    typer.echo(str(run(data, out, config, val or [], device=pick_device(device))))
 
 
 @app.command()
@@ -417,10 +418,10 @@ def eval_coverage(
     from learned.coverage_train import evaluate, load_samples
     from learned.device import pick_device
 
-    model_path = model or _shipped_coverage()
-    net = load_coverage_model(model_path, device=pick_device(device))
+    model_path, device = model or _shipped_coverage(), pick_device(device)
+    net = load_coverage_model(model_path, device=device)
     samples = load_samples(data, net.config, depth_checkpoint or _shipped_checkpoint(),
-                           progress=True, device=pick_device(device))
+                           progress=True, device=device)
     predictions = evaluate(net, samples)
     metrics = coverage_metrics(predictions)
     out.mkdir(parents=True, exist_ok=True)

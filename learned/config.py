@@ -33,6 +33,9 @@ class DepthConfig:
     """Largest depth the network can output."""
     pair_gap_s: float = 0.3
     """Time between the target frame and each source frame."""
+    input_fps: float = 0.0
+    """Frame rate of training videos and image folders whose own is missing or wrong (0:
+    theirs; image folders 30); refused with simulated procedures, which have their own."""
     batch_size: int = 8
     """Triplets per step."""
     learning_rate: float = 5e-4

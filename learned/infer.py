@@ -178,8 +178,8 @@ def aggregate_intrinsics(K_pairs: np.ndarray, size: tuple[int, int], crop: Crop,
 
 def infer_to_folder(model: DepthModel, seq: FrameSequence, out: Path, progress: bool = False
                     ) -> None:
-    """Infer and write the files listed in the module docstring, depth streamed frame by
-    frame."""
+    """Infer and write the files listed in the module docstring, the depth maps batch by
+    batch."""
     out = Path(out)
     result = infer_sequence(model, seq, progress=progress, depth_out=DepthFiles(out / "depth"))
     cv2.imwrite(str(out / "region.png"), seq.region.astype(np.uint8) * 255)

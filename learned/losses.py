@@ -170,7 +170,9 @@ def view_synthesis_loss(
         consistency.append(_depth_consistency(w, mask))
         if config.w_flow > 0:  # steers motion and K only: the flow's errors would bend depth
             rigid = warp(source, target_depth.detach(), T_ts, K).where
-            flow_errors.append(flow_error(rigid, *flows[k], config.flow_scale_px))
+            flow, trusted = flows[k]
+            flow_errors.append(flow_error(rigid, flow, trusted & usable[:, 0],
+                                          config.flow_scale_px))
         cycle = T_st @ T_ts
         eye = torch.eye(3, device=cycle.device, dtype=cycle.dtype)
         rot_cycle.append(((cycle[:, :3, :3] - eye) ** 2).mean())

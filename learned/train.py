@@ -64,7 +64,9 @@ class TripletSampler:
         self.counts = np.array([max(0, s.num_frames - 2 * g)
                                 for s, g in zip(self.sequences, self.gaps, strict=True)])
         if self.counts.sum() == 0:
-            raise InputError("inputs are too short: each needs more than 2 x pair gap frames")
+            raise InputError("inputs are too short: each needs more than 2 x pair gap frames "
+                             "(image folders are taken at 30 frames/s unless --fps says "
+                             "otherwise)")
 
     def batch(self, size: int, rng: np.random.Generator, device: torch.device | str = "cpu"
               ) -> tuple[torch.Tensor, torch.Tensor]:
@@ -104,10 +106,8 @@ def validate(model: DepthModel, sequences: list[FrameSequence], frames_per_seque
 
 def train_depth(data: list[Path], out: Path, config: DepthConfig, val: list[Path] = (),
                 log_every: int = 50, val_every: int = 500, save_every: int = 250,
-                progress: bool = True, device: torch.device | str = "cpu",
-                fps: float | None = None) -> Path:
-    """Train (or resume) on `device` and return the checkpoint path. fps: the frame rate of
-    the training videos and image folders, where theirs is missing or wrong."""
+                progress: bool = True, device: torch.device | str = "cpu") -> Path:
+    """Train (or resume) on `device` and return the checkpoint path."""
     out = Path(out)
     path = out / CHECKPOINT
     if not path.is_file() and config.init and not Path(config.init).is_file():
@@ -121,6 +121,7 @@ def train_depth(data: list[Path], out: Path, config: DepthConfig, val: list[Path
         log.info("resuming %s at step %d", path, step)
         elapsed = _drop_records_after(out / "metrics.jsonl", step)
     size = (config.height, config.width)
+    fps = config.input_fps or None
     sampler = TripletSampler([open_sequence(p, size, fps=fps) for p in expand_inputs(data)],
                              config.pair_gap_s)
     val_sequences = [s for s in (open_sequence(p, size) for p in expand_inputs(list(val)))

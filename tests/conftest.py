@@ -8,6 +8,7 @@ z axis from z = 0 to z = L (so ℓ* of any point is its z, clipped to [0, L]).
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -18,6 +19,10 @@ import torch
 
 from hybrid.types import Camera
 from learned.config import DEPTH_PRESETS
+
+os.environ["C2D2_DEVICE"] = "cpu"
+"""Commands under test run their networks on the CPU whatever the machine, so that results
+compare with CPU references; tests/test_device.py asks for the GPU itself."""
 
 
 @dataclass(frozen=True)

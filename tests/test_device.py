@@ -104,3 +104,20 @@ def test_coverage_networks_train_on_cuda_and_predict_alike_on_the_cpu():
     assert trained[0] < 0.5 * untrained[0] and trained[1] < 0.5 * untrained[1]
     on_cpu = (frame_loss(model.cpu(), samples), segment_loss(model, samples))
     np.testing.assert_allclose(on_cpu, trained, rtol=1e-3)
+
+
+@gpu
+def test_the_flow_term_gives_the_same_on_cuda(moving_texture):
+    config = replace(TINY, w_flow=0.5)
+    seq = open_sequence(moving_texture, (TINY.height, TINY.width))
+    frames = torch.stack([torch.from_numpy(seq.frame(t)).permute(2, 0, 1) for t in (0, 3, 6)]
+                         )[None].float() / 255
+    region = torch.from_numpy(seq.region)[None, None]
+    torch.manual_seed(0)
+    model = DepthModel(config).eval()
+    values = []
+    for device in ("cpu", "cuda"):
+        torch.manual_seed(1)  # the auto-mask's tie-breaking noise
+        values.append(model.to(device).loss(frames.to(device), region.to(device)).as_floats())
+    assert values[0]["flow"] > 0
+    assert values[1]["flow"] == pytest.approx(values[0]["flow"], rel=1e-3)

@@ -24,7 +24,7 @@ from hybrid.types import Camera, InputError
 from learned.checkpoint import read_checkpoint, save_checkpoint
 from learned.config import DEPTH_PRESETS
 from learned.frames import detect_region, open_sequence
-from learned.infer import infer_sequence
+from learned.infer import DepthFiles, infer_sequence
 from learned.model import DepthModel, load_depth_model
 
 runner = CliRunner()
@@ -198,6 +198,18 @@ def test_depth_written_frame_by_frame_equals_the_depth_in_memory(tmp_path, tiny_
                                expected.relative, atol=1e-6)
 
 
+def test_depth_files_of_a_range_count_from_its_first_frame(tmp_path, tiny_checkpoint):
+    folder = write_images(tmp_path / "frames", [disc_frame(seed=s) for s in range(20)])
+    model = load_depth_model(tiny_checkpoint)
+    seq = open_sequence(folder, (TINY.height, TINY.width))
+    expected = infer_sequence(model, seq, frames=range(3, 20))
+    infer_sequence(model, seq, frames=range(3, 20), depth_out=DepthFiles(tmp_path / "depth"))
+    assert len(list((tmp_path / "depth").iterdir())) == 17
+    for i in (0, 16):
+        np.testing.assert_allclose(np.load(tmp_path / "depth" / f"{i:06d}.npy"),
+                                   expected.depth[i], rtol=1e-5)
+
+
 @pytest.mark.parametrize("extra, fps", [((), 25.0), (("--fps", "12.5"), 12.5)])
 def test_depth_on_a_video_takes_its_frame_rate_or_the_one_given(tmp_path, tiny_checkpoint,
                                                                  extra, fps):
@@ -325,13 +337,18 @@ def test_train_depth_with_missing_input(tmp_path):
 
 def test_train_depth_takes_the_frame_rate_of_image_folders(tmp_path):
     """8 images are too few for triplets 0.3 s apart at the default 30 frames/s (9 frames),
-    enough at --fps 10 (3 frames)."""
+    enough at --fps 10 (3 frames); a resumed run keeps its frame rate."""
     folder = write_images(tmp_path / "frames", [disc_frame(seed=s) for s in range(8)])
     command = ["train-depth", "--data", str(folder), "--steps", "1", "--device", "cpu"]
     assert_clean_error(runner.invoke(app, [*command, "--out", str(tmp_path / "a")]), "too short")
     result = runner.invoke(app, [*command, "--out", str(tmp_path / "b"), "--fps", "10"])
     assert result.exit_code == 0, result.output
-    assert read_checkpoint(tmp_path / "b" / "checkpoint.safetensors")[1]["step"] == 1
+    # the run keeps its frame rate: resumed without --fps, it goes on at 10 frames/s
+    command[command.index("--steps") + 1] = "2"
+    result = runner.invoke(app, [*command, "--out", str(tmp_path / "b")])
+    assert result.exit_code == 0, result.output
+    meta = read_checkpoint(tmp_path / "b" / "checkpoint.safetensors")[1]
+    assert meta["step"] == 2 and meta["config"]["input_fps"] == 10.0
 
 
 def test_train_depth_with_a_missing_init_model(tmp_path):

@@ -317,6 +317,26 @@ def read_summary(out: Path) -> dict[str, dict]:
         return {Path(row["video"]).name: row for row in csv.DictReader(f)}
 
 
+def test_batch_with_two_workers_gives_what_one_gives(frames, tmp_path):
+    """Spawned worker processes load their own networks and give the same rows."""
+    videos = tmp_path / "videos"
+    videos.mkdir()
+    write_video(videos / "a.avi", frames[:110], FPS)
+    write_video(videos / "b.avi", frames[90:200], FPS)
+    results = {}
+    for workers in ("1", "2"):
+        out = tmp_path / f"out{workers}"
+        result = runner.invoke(app, ["batch", str(videos), "--out", str(out),
+                                     "--workers", workers])
+        assert result.exit_code == 0, result.output
+        results[workers] = read_summary(out)
+    for name in ("a.avi", "b.avi"):
+        one, two = results["1"][name], results["2"][name]
+        assert (two["status"], two["frames"], two["segments"]) == ("done", "110", "1")
+        for key in ("mean_learned", "mean_geometric"):
+            assert float(two[key]) == pytest.approx(float(one[key]), abs=2e-3)
+
+
 def test_batch_resumes_after_a_kill_and_isolates_a_bad_file(frames, tmp_path):
     videos = tmp_path / "videos"
     videos.mkdir()
