@@ -14,6 +14,7 @@ its error is recorded and the learned branch still reports.
 
 from __future__ import annotations
 
+import hashlib
 import json
 import logging
 import time
@@ -342,6 +343,20 @@ def run_video(source: Path, out: Path, config: RunConfig = RunConfig(),
     return {"timing": timing, "warnings": warnings}
 
 
+def _source_identity(source: Path) -> dict:
+    """What a work folder ran on: the path, and a video file's size, or a folder's content (a
+    simulated procedure's meta.json, else the names and sizes of its files), so that a video
+    simulated or copied again to the same place is not taken for the one already run."""
+    identity = {"path": str(source.resolve()),
+                "size": source.stat().st_size if source.is_file() else None}
+    if source.is_dir():
+        meta = source / "meta.json"
+        listing = "\n".join(f"{p.name} {p.stat().st_size}" for p in sorted(source.iterdir()))
+        identity["content"] = file_tag(meta) if meta.is_file() else \
+            hashlib.sha256(listing.encode()).hexdigest()[:12]
+    return identity
+
+
 def _prepare(out: Path, config: RunConfig, source: Path, models: Models) -> None:
     """Create the work directory; refuse one that holds a run of another video, config or
     model files."""
@@ -354,15 +369,19 @@ def _prepare(out: Path, config: RunConfig, source: Path, models: Models) -> None
         raise InputError(f"cannot write to the output folder {out}: {err.strerror}; choose "
                          f"another --out") from err
     saved = out / W.CONFIG
-    identity = {"path": str(source.resolve()),
-                "size": source.stat().st_size if source.is_file() else None}
+    identity = _source_identity(source)
     resolved = {"config": json.loads(json.dumps(asdict(config))), "source": identity,
                 "checkpoints": models.tags, "c2d2_version": __version__}
     if saved.is_file():
         previous = json.loads(saved.read_text())
-        if previous.get("source") != identity:
-            raise InputError(f"{out} holds a run of {previous.get('source', {}).get('path')}, "
-                             f"not of {source}; use another --out")
+        before = previous.get("source", {}).get("path")
+        if before != identity["path"]:
+            raise InputError(f"{out} holds a run of {before}, not of {source}; use another "
+                             f"--out")
+        if previous["source"] != identity:
+            raise InputError(f"{out} holds a run of {source} as it was before (it has changed "
+                             f"since, or the run is by an earlier c2d2); use another --out or "
+                             f"delete it to start again")
         if previous.get("config") != resolved["config"]:
             raise InputError(f"{out} holds a run made with another configuration; use another "
                              f"--out or delete it to start again")

@@ -312,6 +312,28 @@ def test_cli_refuses_a_work_folder_of_another_video(pipeline_run, frames, tmp_pa
     assert snapshot(work) == kept
 
 
+def test_cli_refuses_a_work_folder_of_a_procedure_simulated_again(pipeline_run, procedure,
+                                                                   tmp_path):
+    """Same path, other content: a procedure simulated again in place is another video."""
+    out, _ = pipeline_run
+    source = tmp_path / "proc"
+    shutil.copytree(procedure.path, source)
+    work = tmp_path / "work"
+    shutil.copytree(out, work)
+    config = json.loads((work / W.CONFIG).read_text())
+    config["source"]["path"] = str(source.resolve())
+    (work / W.CONFIG).write_text(json.dumps(config))
+    resumed = runner.invoke(app, ["run", str(source), "--out", str(work)])
+    assert resumed.exit_code == 0, resumed.output  # the same content: every stage is done
+    kept = snapshot(work)
+    meta = json.loads((source / "meta.json").read_text())
+    (source / "meta.json").write_text(json.dumps({**meta, "seed": meta["seed"] + 1}))
+    result = runner.invoke(app, ["run", str(source), "--out", str(work)])
+    message = assert_input_error(result, str(work))
+    assert "as it was before" in message
+    assert snapshot(work) == kept
+
+
 def read_summary(out: Path) -> dict[str, dict]:
     with (out / "summary.csv").open() as f:
         return {Path(row["video"]).name: row for row in csv.DictReader(f)}

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import shutil
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -16,7 +17,7 @@ from hybrid.sim.colon import Colon, ColonConfig, make_colon
 from hybrid.sim.render import ColonRenderer
 from hybrid.sim.simulate import SimConfig, draw_camera, simulate_procedure
 from hybrid.sim.trajectory import TrajectoryConfig, make_withdrawal
-from hybrid.types import Camera, check_poses
+from hybrid.types import Camera, InputError, check_poses
 
 
 def tree_bytes(root: Path) -> dict[str, bytes]:
@@ -60,6 +61,17 @@ def test_complete_procedure_is_skipped(tmp_path, simulated, sim_config):
     (copy / "coverage.json").write_text(marker)
     assert simulate_procedure(tmp_path, 7, 0, sim_config) == copy
     assert (copy / "coverage.json").read_text() == marker
+
+
+def test_a_complete_procedure_of_other_settings_is_refused(tmp_path, simulated, sim_config):
+    """Not silently reused: a folder simulated with another seed or config is an error."""
+    copy = tmp_path / simulated.name
+    shutil.copytree(simulated, copy)
+    kept = (copy / "coverage.json").read_text()
+    for seed, config in ((8, sim_config), (7, replace(sim_config, style="dusk"))):
+        with pytest.raises(InputError, match="another seed or settings"):
+            simulate_procedure(tmp_path, seed, 0, config)
+    assert (copy / "coverage.json").read_text() == kept
 
 
 def test_meta_records_seed_and_config(simulated, sim_config):

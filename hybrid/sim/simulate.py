@@ -26,7 +26,7 @@ from hybrid.sim.appearance import get_style, make_texture
 from hybrid.sim.colon import Colon, ColonConfig, make_colon
 from hybrid.sim.render import ColonRenderer
 from hybrid.sim.trajectory import TrajectoryConfig, make_withdrawal
-from hybrid.types import PRESET_IMAGE_SIZE, Camera
+from hybrid.types import PRESET_IMAGE_SIZE, Camera, InputError
 
 log = logging.getLogger(__name__)
 
@@ -106,9 +106,16 @@ def draw_scene(config: SimConfig, seed: int, index: int) -> Scene:
 
 def simulate_procedure(out_dir: Path, seed: int, index: int, config: SimConfig,
                        progress: bool = False) -> Path:
-    """Write procedure `index` of `seed` under out_dir; skip it if already complete."""
+    """Write procedure `index` of `seed` under out_dir; skip it if already complete, refuse
+    one that was simulated with another seed or config."""
     final = Path(out_dir) / procedure_name(index)
     if all((final / f).is_file() for f in REQUIRED_FILES):
+        meta = json.loads((final / "meta.json").read_text())
+        asked = json.loads(json.dumps(asdict(config)))
+        if (meta.get("seed"), meta.get("index"), meta.get("config")) != (seed, index, asked):
+            raise InputError(f"{final} holds a procedure simulated with another seed or "
+                             f"settings (seed {meta.get('seed')}); use another --out or delete "
+                             f"it")
         log.info("%s exists, skipped", final)
         return final
     work = final.with_name(final.name + ".partial")
