@@ -46,7 +46,7 @@ from learned.coverage_nets import (
     resample_features,
 )
 from learned.device import device_of
-from learned.frames import Crop, FrameSequence
+from learned.frames import IMAGE_SUFFIXES, Crop, FrameSequence
 from learned.infer import aggregate_intrinsics, predicted_depth, relative_poses
 from learned.model import DepthModel, load_depth_model, to_tensor
 from learned.travel import no_travel, travel_features
@@ -345,13 +345,14 @@ def run_video(source: Path, out: Path, config: RunConfig = RunConfig(),
 
 def _source_identity(source: Path) -> dict:
     """What a work folder ran on: the path, and a video file's size, or a folder's content (a
-    simulated procedure's meta.json, else the names and sizes of its files), so that a video
+    simulated procedure's meta.json, else the names and sizes of its images), so that a video
     simulated or copied again to the same place is not taken for the one already run."""
     identity = {"path": str(source.resolve()),
                 "size": source.stat().st_size if source.is_file() else None}
     if source.is_dir():
         meta = source / "meta.json"
-        listing = "\n".join(f"{p.name} {p.stat().st_size}" for p in sorted(source.iterdir()))
+        images = sorted(p for p in source.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
+        listing = "\n".join(f"{p.name} {p.stat().st_size}" for p in images)
         identity["content"] = file_tag(meta) if meta.is_file() else \
             hashlib.sha256(listing.encode()).hexdigest()[:12]
     return identity
@@ -379,9 +380,10 @@ def _prepare(out: Path, config: RunConfig, source: Path, models: Models) -> None
             raise InputError(f"{out} holds a run of {before}, not of {source}; use another "
                              f"--out")
         if previous["source"] != identity:
-            raise InputError(f"{out} holds a run of {source} as it was before (it has changed "
-                             f"since, or the run is by an earlier c2d2); use another --out or "
-                             f"delete it to start again")
+            why = "it has changed since" if "content" in previous["source"] or \
+                "content" not in identity else "the run is by an earlier c2d2"
+            raise InputError(f"{out} holds a run of {source} as it was before ({why}); use "
+                             f"another --out or delete it to start again")
         if previous.get("config") != resolved["config"]:
             raise InputError(f"{out} holds a run made with another configuration; use another "
                              f"--out or delete it to start again")

@@ -15,7 +15,7 @@ from hybrid.coverage import Lumen
 from hybrid.sim.appearance import TEXELS_PER_CM, get_style
 from hybrid.sim.colon import Colon, ColonConfig, make_colon
 from hybrid.sim.render import ColonRenderer
-from hybrid.sim.simulate import SimConfig, draw_camera, simulate_procedure
+from hybrid.sim.simulate import SimConfig, draw_camera, simulate_dataset, simulate_procedure
 from hybrid.sim.trajectory import TrajectoryConfig, make_withdrawal
 from hybrid.types import Camera, InputError, check_poses
 
@@ -68,9 +68,17 @@ def test_a_complete_procedure_of_other_settings_is_refused(tmp_path, simulated, 
     copy = tmp_path / simulated.name
     shutil.copytree(simulated, copy)
     kept = (copy / "coverage.json").read_text()
-    for seed, config in ((8, sim_config), (7, replace(sim_config, style="dusk"))):
-        with pytest.raises(InputError, match="another seed or settings"):
+    for seed, config, key in ((8, sim_config, "seed"),
+                              (7, replace(sim_config, style="dusk"), "style")):
+        with pytest.raises(InputError, match=f"other settings .*differing: {key}\\)"):
             simulate_procedure(tmp_path, seed, 0, config)
+    # a dataset run checks every folder before rendering any: procedure 1 is not written
+    with pytest.raises(InputError, match="differing: seed"):
+        simulate_dataset(tmp_path, 2, 8, sim_config, workers=2)
+    assert not (tmp_path / "proc_0001").exists() and not (tmp_path / "proc_0001.partial").exists()
+    shutil.copytree(copy, tmp_path / "proc_0001")  # procedure 0 under the name of 1
+    with pytest.raises(InputError, match="differing: index"):
+        simulate_procedure(tmp_path, 7, 1, sim_config)
     assert (copy / "coverage.json").read_text() == kept
 
 

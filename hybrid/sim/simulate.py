@@ -109,13 +109,7 @@ def simulate_procedure(out_dir: Path, seed: int, index: int, config: SimConfig,
     """Write procedure `index` of `seed` under out_dir; skip it if already complete, refuse
     one that was simulated with another seed or config."""
     final = Path(out_dir) / procedure_name(index)
-    if all((final / f).is_file() for f in REQUIRED_FILES):
-        meta = json.loads((final / "meta.json").read_text())
-        asked = json.loads(json.dumps(asdict(config)))
-        if (meta.get("seed"), meta.get("index"), meta.get("config")) != (seed, index, asked):
-            raise InputError(f"{final} holds a procedure simulated with another seed or "
-                             f"settings (seed {meta.get('seed')}); use another --out or delete "
-                             f"it")
+    if _complete(final, seed, index, config):
         log.info("%s exists, skipped", final)
         return final
     work = final.with_name(final.name + ".partial")
@@ -149,6 +143,26 @@ def simulate_procedure(out_dir: Path, seed: int, index: int, config: SimConfig,
     return final
 
 
+def _complete(folder: Path, seed: int, index: int, config: SimConfig) -> bool:
+    """Whether `folder` holds this procedure, complete; an error if it holds another."""
+    if not all((folder / f).is_file() for f in REQUIRED_FILES):
+        return False
+    try:
+        meta = json.loads((folder / "meta.json").read_text())
+    except json.JSONDecodeError as err:
+        raise InputError(f"{folder}/meta.json is damaged ({err}); delete {folder} to simulate "
+                         f"it again") from err
+    saved = meta.get("config", {})
+    asked = {"seed": seed, "index": index, **json.loads(json.dumps(asdict(config)))}
+    saved = {"seed": meta.get("seed"), "index": meta.get("index"), **saved}
+    differ = sorted(k for k in asked.keys() | saved.keys() if asked.get(k) != saved.get(k))
+    if differ:
+        raise InputError(f"{folder} holds a procedure simulated with other settings (by c2d2 "
+                         f"{meta.get('c2d2_version')}; differing: {', '.join(differ)}); use "
+                         f"another --out or delete it")
+    return True
+
+
 def _simulate_one(args: tuple[Path, int, int, SimConfig]) -> Path:
     return simulate_procedure(*args)
 
@@ -159,6 +173,8 @@ def simulate_dataset(out_dir: Path, procedures: int, seed: int, config: SimConfi
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     jobs = [(out_dir, seed, first_index + k, config) for k in range(procedures)]
+    for job in jobs:  # refuse a folder of other settings before rendering anything
+        _complete(out_dir / procedure_name(job[2]), seed, job[2], config)
     if workers <= 1:
         return [simulate_procedure(*job, progress=True) for job in tqdm(jobs, desc="procedures")]
     with ProcessPoolExecutor(workers, mp_context=get_context("spawn")) as pool:
