@@ -2,7 +2,8 @@
 
 No network: for triplets of simulated procedures, the two motions target -> source (axis-angle
 and translation; each backward motion is the exact inverse) are optimised by Adam on
-learned.losses.view_synthesis_loss, starting from no motion (or from the truth). Prints, per
+learned.losses.view_synthesis_loss, starting from no motion (or from the truth; `--grid`
+also from a 3 x 3 grid of pitches and yaws, keeping the fit of lowest loss). Prints, per
 rotation axis of the camera (x right, y down, z forward), the least-squares slope of the fitted
 angles on the true ones (1: found; 0: no rotation found about that axis) and their
 correlation, and the mean loss at the truth and at the fit. If a direct fit from rest stops
@@ -37,8 +38,9 @@ def with_inverse(rotation: torch.Tensor, translation: torch.Tensor) -> tuple[tor
 
 
 def fit(frames, depths, truth, K, config: DepthConfig, iterations: int, start: str,
-        lr: tuple[float, float]):
-    """The fitted rotations (2, 3) of both sources, and the loss at the truth and at the fit."""
+        lr: tuple[float, float], grid_deg: float = 0.0):
+    """The fitted rotations (2, 3) of both sources (the lowest-loss fit over the starts), and
+    the loss at the truth and at the fit."""
     region = torch.ones(1, 1, *frames.shape[-2:])
     flows = [batch_flows(frames[:, 1], frames[:, k]) for k in (0, 2)] \
         if config.w_flow > 0 else None
@@ -49,20 +51,43 @@ def fit(frames, depths, truth, K, config: DepthConfig, iterations: int, start: s
                                    [depths[0], depths[2]], pairs, K, region, config,
                                    flows).total
 
+    def descend(initial: list[torch.Tensor]) -> tuple[list[torch.Tensor], float]:
+        motion = [t.clone().requires_grad_() for t in initial]
+        optimizer = torch.optim.Adam([{"params": motion[0::2], "lr": lr[0]},  # radians
+                                      {"params": motion[1::2], "lr": lr[1]}])  # cm
+        for _ in range(iterations):
+            value = loss(motion)
+            optimizer.zero_grad()
+            value.backward()
+            optimizer.step()
+        with torch.no_grad():
+            return motion, float(loss(motion))
+
     true = [truth[0][0], truth[0][1], truth[1][0], truth[1][1]]
-    motion = [(t.clone() if start == "truth" else torch.zeros_like(t)).requires_grad_()
-              for t in true]
-    optimizer = torch.optim.Adam([{"params": motion[0::2], "lr": lr[0]},  # radians
-                                  {"params": motion[1::2], "lr": lr[1]}])  # cm
-    for _ in range(iterations):
-        value = loss(motion)
-        optimizer.zero_grad()
-        value.backward()
-        optimizer.step()
+    motion, at_fit = min((descend(initial) for initial in starts(true, start, grid_deg)),
+                         key=lambda fitted: fitted[1])
     with torch.no_grad():
-        losses = float(loss(true)), float(loss(motion))
+        losses = float(loss(true)), at_fit
     fitted = torch.cat([motion[0], motion[2]]).detach().numpy()
     return fitted, torch.cat([true[0], true[2]]).numpy(), losses
+
+
+def starts(true: list[torch.Tensor], start: str, grid_deg: float) -> list[list[torch.Tensor]]:
+    """Initial motions: the truth, or rest, and with grid_deg > 0 also every pitch and yaw of
+    -grid_deg, 0, +grid_deg for the first source (the opposite for the second), no
+    translation."""
+    if start == "truth":
+        return [true]
+    rest = [torch.zeros_like(t) for t in true]
+    out = [rest]
+    if grid_deg > 0:
+        step = np.radians(grid_deg)
+        for pitch in (-step, 0.0, step):
+            for yaw in (-step, 0.0, step):
+                if pitch or yaw:
+                    turn = torch.tensor([[pitch, yaw, 0.0]], dtype=true[0].dtype)
+                    out.append([turn, rest[1], -turn, rest[3]])
+    return out
 
 
 def main() -> None:
@@ -74,6 +99,9 @@ def main() -> None:
     parser.add_argument("--lr", type=float, nargs=2, default=[2e-3, 5e-3],
                         metavar=("ROTATION", "TRANSLATION"),
                         help="Adam steps: radians and cm (simulator units)")
+    parser.add_argument("--grid", type=float, default=0.0, metavar="DEG",
+                        help="also start from pitch and yaw of -DEG, 0, +DEG (9 starts) and "
+                             "keep the fit of lowest loss: a search over rotation")
     parser.add_argument("--set", dest="overrides", action="append", default=[],
                         help="a loss setting, e.g. coarse_levels=3 (learned/config.py)")
     args = parser.parse_args()
@@ -82,13 +110,13 @@ def main() -> None:
     for _, frames, depths, motions, K in triplets(list_procedures(args.data),
                                                   config.pair_gap_s, args.every):
         f, t, values = fit(frames, depths, motions, K, config, args.iterations, args.start,
-                           tuple(args.lr))
+                           tuple(args.lr), args.grid)
         fitted.append(f)
         true.append(t)
         losses.append(values)
     fitted, true = np.degrees(np.concatenate(fitted)), np.degrees(np.concatenate(true))
-    print(f"{len(losses)} triplets, start at {args.start}, {args.iterations} Adam iterations, "
-          f"steps {args.lr[0]:g} rad / {args.lr[1]:g} cm")
+    print(f"{len(losses)} triplets, start at {args.start} (grid {args.grid:g} deg), "
+          f"{args.iterations} Adam iterations, steps {args.lr[0]:g} rad / {args.lr[1]:g} cm")
     for k, axis in enumerate("xyz"):
         slope = (fitted[:, k] @ true[:, k]) / (true[:, k] @ true[:, k])
         corr = np.corrcoef(fitted[:, k], true[:, k])[0, 1]
