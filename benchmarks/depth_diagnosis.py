@@ -34,7 +34,7 @@ from focal_scan import true_motion
 
 from hybrid.dataset import Procedure, list_procedures
 from learned.config import DepthConfig
-from learned.flow import batch_flows
+from learned.flow import flows_to_sources
 from learned.losses import view_synthesis_loss
 from learned.model import load_depth_model, to_tensor
 
@@ -67,11 +67,15 @@ def loss_of(frames, depths, motions, K, config: DepthConfig, power: float = 1.0,
     depths = [d**power * median ** (1 - power) for d in depths]
     region = torch.ones(1, 1, *frames.shape[-2:])
     torch.manual_seed(0)  # the same auto-mask tie-breaking everywhere
-    flows = [batch_flows(frames[:, 1], frames[:, k]) for k in (0, 2)] \
-        if config.w_flow > 0 else None
-    return view_synthesis_loss(frames[:, 1], [frames[:, 0], frames[:, 2]], depths[1],
-                               [depths[0], depths[2]], motions, K, region, config,
-                               flows).as_floats()
+    sources = [frames[:, 0], frames[:, 2]]
+    return view_synthesis_loss(frames[:, 1], sources, depths[1], [depths[0], depths[2]],
+                               motions, K, region, config,
+                               flows_to_sources(frames[:, 1], sources, config)).as_floats()
+
+
+def axis_slopes(predicted: np.ndarray, true: np.ndarray) -> list[float]:
+    """Least-squares slope of predicted on true rotation (N, 3) about each camera axis."""
+    return [float(predicted[:, k] @ true[:, k] / (true[:, k] @ true[:, k])) for k in range(3)]
 
 
 def systematic_errors(model, procs: list[Procedure], gap_s: float) -> dict[str, float]:
@@ -102,15 +106,13 @@ def systematic_errors(model, procs: list[Procedure], gap_s: float) -> dict[str, 
                 errors.append(np.abs(scaled - gt[ok]) / gt[ok])
     truth, error = np.concatenate(truths), np.concatenate(errors)
     q25, q75, q90 = np.percentile(truth, [25, 75, 90])
-    axes_pred, axes_true = np.concatenate(axes_pred), np.concatenate(axes_true)
-    axis_slopes = {f"rotation slope {axis}": float(axes_pred[:, k] @ axes_true[:, k]
-                                                   / (axes_true[:, k] @ axes_true[:, k]))
-                   for k, axis in enumerate("xyz")}
+    slopes_xyz = axis_slopes(np.concatenate(axes_pred), np.concatenate(axes_true))
     return {"log-log slope": float(np.median(slopes)),
             "error nearest 25%": float(error[truth < q25].mean()),
             "error middle 50%": float(error[(truth >= q25) & (truth < q75)].mean()),
             "error farthest 10%": float(error[truth >= q90].mean()),
-            "rotation ratio": float(np.median(rotations)), **axis_slopes,
+            "rotation ratio": float(np.median(rotations)),
+            **{f"rotation slope {axis}": v for axis, v in zip("xyz", slopes_xyz, strict=True)},
             "fx ratio": float(np.mean(focals))}
 
 

@@ -21,12 +21,12 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from depth_diagnosis import triplets
+from depth_diagnosis import axis_slopes, triplets
 from kornia.geometry.conversions import rotation_matrix_to_axis_angle
 
 from hybrid.dataset import list_procedures
 from learned.config import DepthConfig, parse_overrides
-from learned.flow import batch_flows
+from learned.flow import flows_to_sources
 from learned.geometry import transform_from
 from learned.losses import view_synthesis_loss
 
@@ -42,14 +42,13 @@ def fit(frames, depths, truth, K, config: DepthConfig, iterations: int, start: s
     """The fitted rotations (2, 3) of both sources (the lowest-loss fit over the starts), and
     the loss at the truth and at the fit."""
     region = torch.ones(1, 1, *frames.shape[-2:])
-    flows = [batch_flows(frames[:, 1], frames[:, k]) for k in (0, 2)] \
-        if config.w_flow > 0 else None
+    sources = [frames[:, 0], frames[:, 2]]
+    flows = flows_to_sources(frames[:, 1], sources, config)  # once, not every iteration
 
     def loss(motion: list[torch.Tensor]) -> torch.Tensor:
         pairs = [with_inverse(motion[2 * k], motion[2 * k + 1]) for k in range(2)]
-        return view_synthesis_loss(frames[:, 1], [frames[:, 0], frames[:, 2]], depths[1],
-                                   [depths[0], depths[2]], pairs, K, region, config,
-                                   flows).total
+        return view_synthesis_loss(frames[:, 1], sources, depths[1], [depths[0], depths[2]],
+                                   pairs, K, region, config, flows).total
 
     def descend(initial: list[torch.Tensor]) -> tuple[list[torch.Tensor], float]:
         motion = [t.clone().requires_grad_() for t in initial]
@@ -117,8 +116,7 @@ def main() -> None:
     fitted, true = np.degrees(np.concatenate(fitted)), np.degrees(np.concatenate(true))
     print(f"{len(losses)} triplets, start at {args.start} (grid {args.grid:g} deg), "
           f"{args.iterations} Adam iterations, steps {args.lr[0]:g} rad / {args.lr[1]:g} cm")
-    for k, axis in enumerate("xyz"):
-        slope = (fitted[:, k] @ true[:, k]) / (true[:, k] @ true[:, k])
+    for k, (axis, slope) in enumerate(zip("xyz", axis_slopes(fitted, true), strict=True)):
         corr = np.corrcoef(fitted[:, k], true[:, k])[0, 1]
         print(f"rotation about {axis}: slope {slope:.2f}, correlation {corr:.2f}, "
               f"true rms {np.sqrt(np.mean(true[:, k] ** 2)):.2f} deg")

@@ -63,7 +63,7 @@ class DepthConfig:
     """Occlusion-aware depth consistency between target and sources."""
     w_flow: float = 0.0
     """Rigid flow of the predicted motion and K (depth held fixed) against OpenCV's DIS optical
-    flow (learned.flow), which reaches farther than the photometric loss (0: off)."""
+    flow (learned.flow); 0: off, as measured it does not help (docs/depth.md)."""
     flow_scale_px: float = 2.0
     """Scale of the Cauchy penalty of the flow term (pixels)."""
     w_rotation_cycle: float = 1e-3

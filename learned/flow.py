@@ -1,10 +1,10 @@
 """Optical flow between training frames (OpenCV's DIS), a wide-reaching target for rigid flow.
 
-The photometric loss only sees misregistrations of a pixel or two, so a motion that starts
-near rest settles with sideways translation standing in for rotation and never reaches the
-true rotation (benchmarks/direct_pose.py). DIS optical flow is found coarse to fine and
-reaches displacements of many pixels; the rigid flow of the predicted motion and K is pulled
-towards it where it passes a forward-backward check (learned.losses.flow_error).
+A motion fitted to the photometric loss from rest settles with sideways translation standing
+in for pitch and yaw (benchmarks/direct_pose.py). DIS optical flow is found coarse to fine and
+reaches displacements of many pixels; with `w_flow` the rigid flow of the predicted motion and
+K is pulled towards it where it passes a forward-backward check (learned.losses.flow_error).
+Measured, it does not help (docs/depth.md, "Rotation out of reach"), so it is off by default.
 """
 
 from __future__ import annotations
@@ -12,6 +12,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 import torch
+
+from learned.config import DepthConfig
 
 FB_TOLERANCE_PX = 1.0
 """Largest forward-backward mismatch (pixels) of a flow vector that is trusted."""
@@ -42,3 +44,10 @@ def batch_flows(targets: torch.Tensor, sources: torch.Tensor) -> tuple[torch.Ten
     flows = torch.from_numpy(np.stack([flow for flow, _ in pairs])).to(targets.device)
     trusted = torch.from_numpy(np.stack([ok for _, ok in pairs])).to(targets.device)
     return flows, trusted
+
+
+def flows_to_sources(target: torch.Tensor, sources: list[torch.Tensor], config: DepthConfig
+                     ) -> list[tuple[torch.Tensor, torch.Tensor]] | None:
+    """batch_flows of the target to each source when the config's flow term is on (w_flow >
+    0), the `flows` that learned.losses.view_synthesis_loss then needs; else None."""
+    return [batch_flows(target, source) for source in sources] if config.w_flow > 0 else None

@@ -40,17 +40,27 @@ class Warp:
     """(B, H, W, 2) where each target pixel lands in the source, in source pixels (u, v)."""
 
 
-def warp(source: torch.Tensor, target_depth: torch.Tensor, T_target_to_source: torch.Tensor,
-         K: torch.Tensor, source_depth: torch.Tensor | None = None) -> Warp:
-    """Synthesise the target view from the source image, the target depth, the motion and K."""
-    _, _, height, width = source.shape
-    points = depth_to_3d_v2(target_depth[:, 0], K)  # (B, H, W, 3) in the target camera
+def project(target_depth: torch.Tensor, T_target_to_source: torch.Tensor, K: torch.Tensor
+            ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """The target pixels' 3-D points (B, H, W, 3) in the target camera, the same points in the
+    source camera, and where they land in the source (B, H, W, 2), in pixels (u, v)."""
+    points = depth_to_3d_v2(target_depth[:, 0], K)
     R, t = T_target_to_source[:, :3, :3], T_target_to_source[:, :3, 3]
     moved = torch.einsum("bij,bhwj->bhwi", R, points) + t[:, None, None, :]
     z = moved[..., 2]
     z_safe = torch.where(z > 1e-3, z, torch.full_like(z, 1e-3))
     u = K[:, 0, 0, None, None] * moved[..., 0] / z_safe + K[:, 0, 2, None, None]
     v = K[:, 1, 1, None, None] * moved[..., 1] / z_safe + K[:, 1, 2, None, None]
+    return points, moved, torch.stack([u, v], dim=-1)
+
+
+def warp(source: torch.Tensor, target_depth: torch.Tensor, T_target_to_source: torch.Tensor,
+         K: torch.Tensor, source_depth: torch.Tensor | None = None) -> Warp:
+    """Synthesise the target view from the source image, the target depth, the motion and K."""
+    _, _, height, width = source.shape
+    points, moved, where = project(target_depth, T_target_to_source, K)
+    z = moved[..., 2]
+    u, v = where[..., 0], where[..., 1]
     grid = torch.stack([2 * u / (width - 1) - 1, 2 * v / (height - 1) - 1], dim=-1)
     inside = (grid.abs() <= 1).all(dim=-1) & (z > 1e-3)
 
@@ -64,5 +74,5 @@ def warp(source: torch.Tensor, target_depth: torch.Tensor, T_target_to_source: t
         depth_in_source=z[:, None],
         sampled_source_depth=None if source_depth is None else sample(source_depth),
         ray_ratio=ratio[:, None],
-        where=torch.stack([u, v], dim=-1),
+        where=where,
     )

@@ -17,7 +17,7 @@ from kornia.losses import inverse_depth_smoothness_loss
 from kornia.metrics import ssim
 
 from learned.config import DepthConfig
-from learned.geometry import Warp, transform_from, warp
+from learned.geometry import Warp, project, transform_from, warp
 
 _SPECULAR_THRESHOLD = 0.96
 """A pixel whose mean RGB exceeds this is a specular highlight."""
@@ -94,8 +94,8 @@ def specular(image: torch.Tensor) -> torch.Tensor:
 
 def flow_error(where: torch.Tensor, flow: torch.Tensor, trusted: torch.Tensor,
                scale_px: float) -> torch.Tensor:
-    """Mean Cauchy distance log(1 + (d / scale_px)^2) between where target pixels land by the
-    predicted depth and motion, `where` (B, H, W, 2), and where the optical flow (B, H, W, 2)
+    """Mean Cauchy distance log(1 + (d / scale_px)^2) between where target pixels land by a
+    depth, motion and K, `where` (B, H, W, 2), and where the optical flow (B, H, W, 2)
     takes them, over the trusted pixels (B, H, W) whose flow lands inside the image. The
     Cauchy penalty keeps pulling from far away and shrugs off the flow's gross errors."""
     height, width = flow.shape[1:3]
@@ -169,7 +169,7 @@ def view_synthesis_loss(
         identity_errors.append(_identity_error(source, target, config))
         consistency.append(_depth_consistency(w, mask))
         if config.w_flow > 0:  # steers motion and K only: the flow's errors would bend depth
-            rigid = warp(source, target_depth.detach(), T_ts, K).where
+            rigid = project(target_depth.detach(), T_ts, K)[2]
             flow, trusted = flows[k]
             flow_errors.append(flow_error(rigid, flow, trusted & usable[:, 0],
                                           config.flow_scale_px))

@@ -10,7 +10,7 @@ from torch import nn
 
 from learned.checkpoint import load_model
 from learned.config import DepthConfig
-from learned.flow import batch_flows
+from learned.flow import flows_to_sources
 from learned.losses import LossTerms, view_synthesis_loss
 from learned.nets import DepthNet, MotionNet
 
@@ -53,11 +53,10 @@ class DepthModel(nn.Module):
             motions.append((r_ts, t_ts, r_st, t_st))
             intrinsics.append(K)
         K = torch.stack(intrinsics).mean(0)
-        flows = [batch_flows(target, frames[:, k]) for k in (0, 2)] \
-            if self.config.w_flow > 0 else None
-        return view_synthesis_loss(target, [frames[:, 0], frames[:, 2]], depths[:, 1],
-                                   [depths[:, 0], depths[:, 2]], motions, K, region, self.config,
-                                   flows)
+        sources = [frames[:, 0], frames[:, 2]]
+        return view_synthesis_loss(target, sources, depths[:, 1], [depths[:, 0], depths[:, 2]],
+                                   motions, K, region, self.config,
+                                   flows_to_sources(target, sources, self.config))
 
 
 def to_tensor(images: np.ndarray, device: torch.device | str = "cpu") -> torch.Tensor:
