@@ -291,16 +291,16 @@ def train_depth(
     """Train depth, ego-motion and intrinsics by view synthesis; resumes from --out."""
     from learned.config import depth_config, parse_overrides
     from learned.device import pick_device
+    from learned.frames import check_fps
     from learned.train import train_depth as run
 
+    check_fps(fps)  # 0 would read as "the inputs' own" in the config
     try:
         config = depth_config(preset, steps=steps, batch_size=batch_size, seed=seed,
                               init=None if init is None else str(init), input_fps=fps,
                               **parse_overrides(set_ or []))
     except ValueError as err:
         raise InputError(str(err)) from err
-    if fps is not None and not fps > 0:
-        raise InputError(f"--fps must be positive, got {fps}")
     typer.echo(str(run(data, out, config, val or [], device=pick_device(device))))
 
 
@@ -325,8 +325,6 @@ def depth(
     from learned.model import load_depth_model
 
     model = load_depth_model(checkpoint or _shipped_checkpoint(), device=pick_device(device))
-    if fps is not None and not fps > 0:
-        raise InputError(f"--fps must be positive, got {fps}")
     seq = open_sequence(input, (model.config.height, model.config.width), _read_mask(mask), fps)
     infer_to_folder(model, seq, out, progress=True)
     typer.echo(str(out))
@@ -353,9 +351,7 @@ def eval_depth(
     model = load_depth_model(checkpoint or _shipped_checkpoint(), device=pick_device(device))
     size = (model.config.height, model.config.width)
     paths = expand_inputs(data)
-    names = [p.name for p in paths]
-    if len(set(names)) < len(names):  # e.g. proc_0000 of two datasets
-        names = [f"{p.parent.name}/{p.name}" for p in paths]
+    names = [f"{p.parent.name}/{p.name}" for p in paths]  # proc_0000 of two datasets differ
     results = {name: evaluate_sequence(model, open_sequence(path, size), frames)
                for name, path in zip(names, paths, strict=True)}
     summary = summarise(results)

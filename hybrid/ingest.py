@@ -29,7 +29,7 @@ from tqdm import tqdm
 from hybrid.npyio import NpyWriter
 from hybrid.types import InputError
 from hybrid.workdir import write_json
-from learned.frames import IMAGE_SUFFIXES, VIDEO_SUFFIXES, Crop, detect_region
+from learned.frames import IMAGE_SUFFIXES, VIDEO_SUFFIXES, Crop, check_fps, detect_region
 
 DARK_GREY = 30
 """Mean grey level (0-255) under which a frame is too dark."""
@@ -145,6 +145,7 @@ def ingest(path: Path, size: tuple[int, int], frames_out: Path, region: np.ndarr
 
 
 def _open(path: Path, fps: float | None) -> _Source:
+    check_fps(fps)
     if not path.exists():
         raise InputError(f"input not found: {path}")
     if path.is_dir() and (path / "rgb").is_dir() and (path / "camera.json").is_file():

@@ -46,7 +46,7 @@ from learned.coverage_nets import (
     resample_features,
 )
 from learned.device import device_of
-from learned.frames import IMAGE_SUFFIXES, Crop, FrameSequence
+from learned.frames import IMAGE_SUFFIXES, Crop, FrameSequence, check_fps
 from learned.infer import aggregate_intrinsics, predicted_depth, relative_poses
 from learned.model import DepthModel, load_depth_model, to_tensor
 from learned.travel import no_travel, travel_features
@@ -76,8 +76,7 @@ class RunConfig:
     geometric: GeometricConfig = field(default_factory=GeometricConfig)
 
     def __post_init__(self) -> None:
-        if self.fps is not None and not self.fps > 0:
-            raise InputError(f"the frame rate must be positive, got {self.fps}")
+        check_fps(self.fps)
         if not self.segment_seconds > 0:
             raise InputError(f"segments must last a positive time, got {self.segment_seconds}")
 

@@ -99,6 +99,9 @@ class DepthConfig:
                              f"{self.height}x{self.width}")
         if not self.display_gamma > 0:
             raise ValueError(f"display_gamma must be positive, got {self.display_gamma}")
+        if not self.input_fps >= 0:
+            raise ValueError(f"input_fps must be positive (0: the inputs' own), got "
+                             f"{self.input_fps}")
 
     def lr_at(self, step: int) -> float:
         """Learning rate of training step `step` (counted from 0)."""

@@ -119,6 +119,12 @@ class FrameSequence:
         return None if self._depth is None else self._fit(self._depth(index), cv2.INTER_NEAREST)
 
 
+def check_fps(fps: float | None) -> None:
+    """A frame rate given for an input must be a positive number (None: the input's own)."""
+    if fps is not None and not fps > 0:
+        raise InputError(f"--fps must be positive, got {fps}")
+
+
 def open_sequence(path: Path, size: tuple[int, int], region: np.ndarray | None = None,
                   fps: float | None = None) -> FrameSequence:
     """A simulated procedure folder, a folder of images, or a video file.
@@ -127,6 +133,7 @@ def open_sequence(path: Path, size: tuple[int, int], region: np.ndarray | None =
     fps: the frame rate of a video or image folder (None: the video's own; 30 for images).
     """
     path = Path(path)
+    check_fps(fps)
     if not path.exists():
         raise InputError(f"input not found: {path}")
     if path.is_dir() and (path / "rgb").is_dir() and (path / "camera.json").is_file():
