@@ -46,7 +46,7 @@ from learned.coverage_nets import (
     resample_features,
 )
 from learned.device import device_of
-from learned.frames import IMAGE_SUFFIXES, Crop, FrameSequence, check_fps
+from learned.frames import IMAGE_SUFFIXES, FrameSequence, check_fps
 from learned.infer import aggregate_intrinsics, predicted_depth, relative_poses
 from learned.model import DepthModel, load_depth_model, to_tensor
 from learned.travel import no_travel, travel_features
@@ -129,10 +129,8 @@ class _Run:
 
     def sequence(self) -> FrameSequence:
         """The ingested frames (already cut to the image region and resized)."""
-        frames = self.frames()
-        return FrameSequence(self.source.name, self.ingested.fps, self.size, frames.__getitem__,
-                             len(frames), region=np.ones(self.size, dtype=bool),
-                             crop=Crop(**self.ingested.crop))
+        return FrameSequence.ingested(self.source.name, self.ingested, self.path(W.FRAMES),
+                                      np.ones(self.size, dtype=bool))
 
     @property
     def segment_frames(self) -> int:

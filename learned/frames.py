@@ -70,6 +70,15 @@ def detect_region(frames: list[np.ndarray]) -> np.ndarray:
 class FrameSequence:
     """Frames of one video-like input, cropped to the image region and resized to (H, W)."""
 
+    @classmethod
+    def ingested(cls, name: str, record, frames: Path, region: np.ndarray) -> FrameSequence:
+        """The frames that hybrid.ingest wrote to `frames` (cut to the image region and
+        resized; `record` its Ingested), read back on demand; region at their size."""
+        from hybrid.npyio import NpyRows
+
+        return cls(name, record.fps, region.shape, NpyRows(frames).__getitem__, record.frames,
+                   region=region, crop=Crop(**record.crop))
+
     def __init__(self, name: str, fps: float, size: tuple[int, int], loader, count: int,
                  region: np.ndarray | None = None, camera: Camera | None = None,
                  depth_loader=None, poses: np.ndarray | None = None, crop: Crop | None = None):
@@ -183,13 +192,11 @@ def _video(path: Path, size: tuple[int, int], region: np.ndarray | None, fps: fl
     """Stream the video into a temporary file of network-sized frames, read back on demand, so
     that no frame is held at the video's own size (hybrid.ingest, as `c2d2 run` does)."""
     from hybrid.ingest import ingest  # it builds on this module
-    from hybrid.npyio import NpyRows
 
     folder = Path(tempfile.mkdtemp(prefix="c2d2-frames-"))
     try:
         record, small_region = ingest(path, size, folder / "frames.npy", region, fps)
-        seq = FrameSequence(str(path), record.fps, size, NpyRows(folder / "frames.npy").__getitem__,
-                            record.frames, region=small_region, crop=Crop(**record.crop))
+        seq = FrameSequence.ingested(str(path), record, folder / "frames.npy", small_region)
     except BaseException:
         shutil.rmtree(folder, ignore_errors=True)
         raise
