@@ -137,11 +137,13 @@ def test_crop_maps_network_intrinsics_back_to_the_input(tmp_path):
     assert y_in == pytest.approx(crop.y0 + (v + 0.5) * sy - 0.5, rel=1e-12)
 
 
-def test_a_video_is_streamed_into_network_sized_frames(tmp_path):
+def test_a_video_is_streamed_into_network_sized_frames(tmp_path, monkeypatch):
     """A video is read into a file of frames at the network's size, not held at its own size;
     each frame is the decoded one cut to the detected region and resized."""
     frames = [disc_frame(seed=s) for s in range(4)]
     video = write_video(tmp_path / "clip.avi", frames, 25.0)
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path / "tmp"))  # no other run's folders
+    (tmp_path / "tmp").mkdir()
     temporary = Path(tempfile.gettempdir())
     before = set(temporary.glob("c2d2-frames-*"))
     seq = open_sequence(video, (64, 96))
