@@ -73,8 +73,9 @@ def run_procedure(proc: Procedure, model, graph: PoseGraphConfig, config: Recons
         if mode.startswith("learned") and not learned:
             seq = open_sequence(proc.path, (model.config.height, model.config.width))
             inferred = infer_sequence(model, seq)
+            skips = tuple(g for g in graph.skips if g > 1)
             relative = {1: inferred.relative,
-                        **relative_poses(model, seq, tuple(g for g in graph.skips if g > 1))}
+                        **(relative_poses(model, seq, skips) if skips else {})}
             learned.update(depth=list(inferred.depth), K=np.median(inferred.K_pairs, axis=0),
                            network_s=time.time() - tic)
             graph_tic = time.time()
@@ -173,6 +174,9 @@ def main() -> None:
     parser.add_argument("--occlusion-tolerance", type=float,
                         default=GeometricConfig().occlusion_tolerance,
                         help="GeometricConfig.occlusion_tolerance (× local radius)")
+    parser.add_argument("--skips", type=int, nargs="+", default=list(PoseGraphConfig().skips),
+                        help="PoseGraphConfig.skips: the frame gaps whose relative poses "
+                             "become pose-graph factors")
     args = parser.parse_args()
     modes = tuple(args.modes)
     geometric = GeometricConfig(occlusion_tolerance=args.occlusion_tolerance)
@@ -180,7 +184,7 @@ def main() -> None:
     from learned.checkpoints import SHIPPED_DEPTH
 
     model = load_depth_model(args.checkpoint or SHIPPED_DEPTH)
-    graph, config = PoseGraphConfig(), ReconstructionConfig()
+    graph, config = PoseGraphConfig(skips=tuple(args.skips)), ReconstructionConfig()
     results = {f"{p.parent.name}/{p.name}": run_procedure(Procedure.open(p), model, graph,
                                                            config, geometric, modes)
                for p in expand_inputs(args.data)}

@@ -66,6 +66,15 @@ class DepthConfig:
     flow (learned.flow); 0: off, as measured it does not help (docs/depth.md)."""
     flow_scale_px: float = 2.0
     """Scale of the Cauchy penalty of the flow term (pixels)."""
+    w_chain: float = 0.0
+    """L1 (radians per axis) between the rotation target -> previous frame and the composition
+    of the motion net's own estimates over the chain_steps steps between them (no gradient
+    through the chain); 0: off."""
+    chain_steps: int = 9
+    """Steps of the chain term: frames previous + round(j * gap / chain_steps), j = 0 ... ."""
+    chain_teacher: str = "self"
+    """Whose small-step estimates the chain term composes: "self" (the model being trained) or
+    "init" (the `init` model, frozen, so that they cannot drift with training)."""
     w_rotation_cycle: float = 1e-3
     """Forward and backward rotations compose to the identity."""
     w_translation_cycle: float = 1e-2
@@ -97,6 +106,13 @@ class DepthConfig:
             raise ValueError(f"coarse_levels={self.coarse_levels} needs a size divisible by "
                              f"{block} and at least {8 * block} pixels, got "
                              f"{self.height}x{self.width}")
+        if self.w_chain < 0 or self.chain_steps < 1:
+            raise ValueError(f"w_chain must be >= 0 and chain_steps >= 1, got {self.w_chain} "
+                             f"and {self.chain_steps}")
+        if self.chain_teacher not in ("self", "init") or (self.chain_teacher == "init"
+                                                          and not self.init):
+            raise ValueError(f"chain_teacher must be 'self' or 'init' (with an init model), "
+                             f"got {self.chain_teacher!r}")
         if not self.display_gamma > 0:
             raise ValueError(f"display_gamma must be positive, got {self.display_gamma}")
         if not self.input_fps >= 0:

@@ -22,6 +22,17 @@ def transform_from(rotation: torch.Tensor, translation: torch.Tensor) -> torch.T
     return T
 
 
+def mean_transform(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    """Average of two estimates (B, 4, 4) of the same transform, its rotation projected back
+    to SO(3)."""
+    mean = 0.5 * (a + b)
+    U, _, Vt = torch.linalg.svd(mean[:, :3, :3])
+    det = torch.linalg.det(U @ Vt)
+    D = torch.diag_embed(torch.stack([torch.ones_like(det), torch.ones_like(det), det], -1))
+    mean[:, :3, :3] = U @ D @ Vt
+    return mean
+
+
 @dataclass
 class Warp:
     """A source image warped into the target view."""

@@ -23,7 +23,6 @@ from tqdm import tqdm
 from hybrid.types import Camera, InputError, chain_poses
 from learned.device import device_of
 from learned.frames import Crop, FrameSequence
-from learned.geometry import transform_from
 from learned.model import DepthModel, to_tensor
 
 
@@ -80,8 +79,8 @@ def infer_sequence(model: DepthModel, seq: FrameSequence, batch: int = 16,
             depth_out[ids.start - frames.start:ids.stop - frames.start] = predicted
         chain = images if previous is None else torch.cat([previous, images])
         if len(chain) > 1:
-            T, K = _pair_transforms(model, chain[:-1], chain[1:])
-            relative.append(T)
+            T, K = model.pair_transform(chain[:-1], chain[1:])
+            relative.append(T.cpu().numpy())
             K_pairs.append(K.cpu().numpy())
         previous = images[-1:]
     return DepthOutput(np.concatenate(depth) if depth_out is None else depth_out,
@@ -113,8 +112,8 @@ def relative_poses(model: DepthModel, seq: FrameSequence, gaps: tuple[int, ...],
             firsts = min(batch, len(images) - g)
             if firsts <= 0:
                 continue
-            relative[g].append(_pair_transforms(model, images[:firsts],
-                                                images[g:g + firsts])[0])
+            T = model.pair_transform(images[:firsts], images[g:g + firsts])[0]
+            relative[g].append(T.cpu().numpy())
     return {g: np.concatenate(stacks) for g, stacks in relative.items()}
 
 
@@ -132,26 +131,6 @@ def predicted_depth(model: DepthModel, seq: FrameSequence, batch: int = 32,
         images = to_tensor(np.stack([seq.frame(i) for i in ids]), device_of(model))
         out[ids.start:ids.stop] = model.depth(images)[:, 0].cpu().numpy()
     return out
-
-
-def _pair_transforms(model: DepthModel, a: torch.Tensor, b: torch.Tensor
-                     ) -> tuple[np.ndarray, torch.Tensor]:
-    """(B, 4, 4) transforms a -> b, each the mean of the forward and the inverted backward
-    estimate, and the pairs' intrinsics (B, 3, 3)."""
-    r_ab, t_ab, r_ba, t_ba, K = model.pair_motion(a, b)
-    forward = transform_from(r_ab, t_ab).double()
-    backward = torch.linalg.inv(transform_from(r_ba, t_ba).double())
-    return _mean_transform(forward, backward).cpu().numpy(), K
-
-
-def _mean_transform(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
-    """Average of two estimates of the same transform (rotation projected back to SO(3))."""
-    mean = 0.5 * (a + b)
-    U, _, Vt = torch.linalg.svd(mean[:, :3, :3])
-    det = torch.linalg.det(U @ Vt)
-    D = torch.diag_embed(torch.stack([torch.ones_like(det), torch.ones_like(det), det], -1))
-    mean[:, :3, :3] = U @ D @ Vt
-    return mean
 
 
 def aggregate_intrinsics(K_pairs: np.ndarray, size: tuple[int, int], crop: Crop, fps: float

@@ -9,7 +9,7 @@ inverse-square correction for the light that moves with the camera.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import torch
 import torch.nn.functional as F
@@ -119,6 +119,8 @@ class LossTerms:
     rotation_cycle: torch.Tensor
     translation_cycle: torch.Tensor
     flow: torch.Tensor
+    chain: torch.Tensor = field(default_factory=lambda: torch.zeros(()))
+    """Set by DepthModel.loss when config.w_chain > 0."""
 
     def as_floats(self) -> dict[str, float]:
         return {k: float(v.detach()) for k, v in vars(self).items()}

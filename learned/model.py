@@ -2,15 +2,18 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import torch
+from kornia.geometry.conversions import rotation_matrix_to_axis_angle
 from torch import nn
 
 from learned.checkpoint import load_model
 from learned.config import DepthConfig
 from learned.flow import flows_to_sources
+from learned.geometry import mean_transform, transform_from
 from learned.losses import LossTerms, view_synthesis_loss
 from learned.nets import DepthNet, MotionNet
 
@@ -37,15 +40,28 @@ class DepthModel(nn.Module):
         return (rotation[:n], translation[:n], rotation[n:], translation[n:],
                 0.5 * (K[:n] + K[n:]))
 
+    def pair_transform(self, a: torch.Tensor, b: torch.Tensor
+                       ) -> tuple[torch.Tensor, torch.Tensor]:
+        """(B, 4, 4) float64 transforms a -> b, each the mean of the forward and the inverted
+        backward estimate, and the pairs' intrinsics (B, 3, 3)."""
+        r_ab, t_ab, r_ba, t_ba, K = self.pair_motion(a, b)
+        forward = transform_from(r_ab, t_ab).double()
+        backward = torch.linalg.inv(transform_from(r_ba, t_ba).double())
+        return mean_transform(forward, backward), K
+
     def loss(self, frames: torch.Tensor, region: torch.Tensor,
-             depths: torch.Tensor | None = None) -> LossTerms:
-        """View-synthesis loss of triplets frames (B, 3 frames, 3, H, W): previous, target, next.
+             depths: torch.Tensor | None = None, chain_target: torch.Tensor | None = None
+             ) -> LossTerms:
+        """View-synthesis loss of triplets frames (B, 3 + n, 3, H, W): previous, target, next,
+        then n frames that only `chained_rotation` reads.
 
         depths (B, 3, 1, H, W), if given, replace the depth network (to probe the motion net).
+        chain_target (B, 3): the rotation target -> previous that the chain term (config.w_chain
+        > 0) pulls the estimate towards, from `chained_rotation`.
         """
         batch = frames.shape[0]
         if depths is None:
-            depths = self.depth(frames.flatten(0, 1)).unflatten(0, (batch, 3))
+            depths = self.depth(frames[:, :3].flatten(0, 1)).unflatten(0, (batch, 3))
         target = frames[:, 1]
         motions, intrinsics = [], []
         for k in (0, 2):
@@ -54,9 +70,34 @@ class DepthModel(nn.Module):
             intrinsics.append(K)
         K = torch.stack(intrinsics).mean(0)
         sources = [frames[:, 0], frames[:, 2]]
-        return view_synthesis_loss(target, sources, depths[:, 1], [depths[:, 0], depths[:, 2]],
-                                   motions, K, region, self.config,
-                                   flows_to_sources(target, sources, self.config))
+        terms = view_synthesis_loss(target, sources, depths[:, 1], [depths[:, 0], depths[:, 2]],
+                                    motions, K, region, self.config,
+                                    flows_to_sources(target, sources, self.config))
+        if self.config.w_chain == 0:
+            return terms
+        if chain_target is None:
+            raise ValueError("config.w_chain > 0 needs the chain_target rotations")
+        chain = (motions[0][0] - chain_target).abs().sum(1).mean()
+        return replace(terms, total=terms.total + self.config.w_chain * chain, chain=chain)
+
+
+@torch.no_grad()
+def chained_rotation(model: DepthModel, frames: torch.Tensor) -> torch.Tensor:
+    """(B, 3) axis-angle rotation target -> previous composed from the model's motion
+    estimates between consecutive frames of the chain previous, frames[:, 3:]..., target
+    (frames as in DepthModel.loss), in eval mode as at inference. The motion net finds more of
+    the rotation in small steps than over the pair gap (docs/depth.md)."""
+    chain = torch.cat([frames[:, :1], frames[:, 3:], frames[:, 1:2]], 1)
+    batch, count = chain.shape[:2]
+    training = model.motion.training
+    model.motion.eval()
+    steps = model.pair_transform(chain[:, 1:].flatten(0, 1), chain[:, :-1].flatten(0, 1))[0]
+    model.motion.train(training)
+    steps = steps.unflatten(0, (batch, count - 1))  # frame k+1 -> frame k
+    composed = steps[:, 0]
+    for k in range(1, count - 1):
+        composed = composed @ steps[:, k]
+    return rotation_matrix_to_axis_angle(composed[:, :3, :3].float())
 
 
 def to_tensor(images: np.ndarray, device: torch.device | str = "cpu") -> torch.Tensor:

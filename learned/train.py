@@ -31,7 +31,7 @@ from learned.config import DEPTH_PRESETS, DepthConfig
 from learned.device import device_of
 from learned.frames import VIDEO_SUFFIXES, FrameSequence, open_sequence
 from learned.metrics import intrinsics_error, mre
-from learned.model import DepthModel, load_depth_model, to_tensor
+from learned.model import DepthModel, chained_rotation, load_depth_model, to_tensor
 
 log = logging.getLogger(__name__)
 CHECKPOINT = "checkpoint.safetensors"
@@ -58,6 +58,9 @@ class TripletSampler:
 
     sequences: list[FrameSequence]
     pair_gap_s: float
+    chain_steps: int = 0
+    """Also the frames between previous and target for a chain of this many steps (0: none;
+    DepthModel.loss)."""
 
     def __post_init__(self) -> None:
         self.gaps = [max(1, round(s.fps * self.pair_gap_s)) for s in self.sequences]
@@ -70,7 +73,9 @@ class TripletSampler:
 
     def batch(self, size: int, rng: np.random.Generator, device: torch.device | str = "cpu"
               ) -> tuple[torch.Tensor, torch.Tensor]:
-        """Frames (B, 3, 3, H, W) in [0, 1] and image regions (B, 1, H, W), on `device`."""
+        """Frames (B, 3 + n, 3, H, W) in [0, 1] (previous, target, next, then the n =
+        chain_steps - 1 frames between previous and target, if chain_steps) and image regions
+        (B, 1, H, W), on `device`."""
         picks = rng.choice(self.counts.sum(), size)
         bounds = np.cumsum(self.counts)
         frames, regions = [], []
@@ -78,7 +83,9 @@ class TripletSampler:
             k = int(np.searchsorted(bounds, pick, side="right"))
             seq, gap = self.sequences[k], self.gaps[k]
             t = int(pick - (bounds[k] - self.counts[k])) + gap
-            frames.append(np.stack([seq.frame(t - gap), seq.frame(t), seq.frame(t + gap)]))
+            between = [t - gap + round(j * gap / self.chain_steps)
+                       for j in range(1, self.chain_steps)]
+            frames.append(np.stack([seq.frame(i) for i in (t - gap, t, t + gap, *between)]))
             regions.append(seq.region)
         return (to_tensor(np.stack(frames), device),
                 torch.from_numpy(np.stack(regions))[:, None].to(device))
@@ -123,7 +130,7 @@ def train_depth(data: list[Path], out: Path, config: DepthConfig, val: list[Path
     size = (config.height, config.width)
     fps = config.input_fps or None
     sampler = TripletSampler([open_sequence(p, size, fps=fps) for p in expand_inputs(data)],
-                             config.pair_gap_s)
+                             config.pair_gap_s, config.chain_steps if config.w_chain else 0)
     val_sequences = [s for s in (open_sequence(p, size) for p in expand_inputs(list(val)))
                      if s.camera is not None]
     torch.manual_seed(config.seed)
@@ -135,6 +142,8 @@ def train_depth(data: list[Path], out: Path, config: DepthConfig, val: list[Path
     elif config.init:
         model.load_state_dict(load_depth_model(Path(config.init), config.preset, device)
                               .state_dict())
+    teacher = load_depth_model(Path(config.init), config.preset, device) \
+        if config.w_chain and config.chain_teacher == "init" else model
     (out / "config.json").write_text(json.dumps(config.to_dict(), indent=1) + "\n")
     metrics_log = (out / "metrics.jsonl").open("a")
     model.train()
@@ -145,7 +154,9 @@ def train_depth(data: list[Path], out: Path, config: DepthConfig, val: list[Path
     while step < config.steps:
         rng = np.random.default_rng([config.seed, step])  # resumable sampling
         torch.manual_seed(config.seed * 1_000_003 + step)  # and resumable noise in the loss
-        terms = model.loss(*sampler.batch(config.batch_size, rng, device))
+        frames, regions = sampler.batch(config.batch_size, rng, device)
+        terms = model.loss(frames, regions, chain_target=chained_rotation(teacher, frames)
+                           if config.w_chain else None)
         optimizer.zero_grad()
         terms.total.backward()
         for group in optimizer.param_groups:

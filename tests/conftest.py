@@ -170,6 +170,15 @@ TINY = replace(DEPTH_PRESETS["fast"], height=64, width=96, batch_size=2, learnin
 """The fast depth preset shrunk for tests (its preset name stays 'fast')."""
 
 
+@pytest.fixture(scope="session")
+def clip(tmp_path_factory) -> Path:
+    """A 30-frame simulated procedure of a 14 cm colon."""
+    from hybrid.sim.simulate import SimConfig, simulate_procedure, with_overrides
+
+    return simulate_procedure(tmp_path_factory.mktemp("clip"), 3, 0,
+                              with_overrides(SimConfig(), length_cm=14, max_frames=30))
+
+
 @pytest.fixture
 def one_thread():
     """Keep torch on one thread: the machine is shared, and results stay deterministic."""

@@ -24,15 +24,6 @@ pytestmark = pytest.mark.usefixtures("one_thread")
 
 
 @pytest.fixture(scope="module")
-def clip(tmp_path_factory):
-    """A 30-frame simulated procedure of a 14 cm colon."""
-    from hybrid.sim.simulate import SimConfig, simulate_procedure, with_overrides
-
-    return simulate_procedure(tmp_path_factory.mktemp("clip"), 3, 0,
-                              with_overrides(SimConfig(), length_cm=14, max_frames=30))
-
-
-@pytest.fixture(scope="module")
 def batch(clip):
     """One fixed batch of 2 triplets at 64 x 96."""
     sampler = TripletSampler([open_sequence(clip, (TINY.height, TINY.width))], TINY.pair_gap_s)
