@@ -74,8 +74,8 @@ def main() -> None:
                     degrees(chained(steps, starts, gap, step)))
     true = np.concatenate(rows.pop("true"))
     rms = np.sqrt((true**2).mean(0)).astype(float).round(2).tolist()
-    print(f"{len(true)} pairs {model.config.pair_gap_s:g} s apart; true rms x/y/z {rms} deg; "
-          f"consecutive pairs' fx / true {np.mean(focal):.2f}")
+    print(f"{len(true)} pairs {model.config.pair_gap_s:g} s apart; true rms x/y/z {rms} deg"
+          + (f"; consecutive pairs' fx / true {np.mean(focal):.2f}" if focal else ""))
     for name, values in rows.items():
         predicted = np.concatenate(values)
         corr = [np.corrcoef(predicted[:, k], true[:, k])[0, 1] for k in range(3)]

@@ -125,7 +125,8 @@ def main() -> None:
     args = parser.parse_args()
     torch.set_num_threads(1)
     model = load_depth_model(args.model)
-    model.config = replace(model.config, w_chain=0.0)  # the chain term means nothing at the truth
+    # The view-synthesis loss only (a chain-trained model's loss would need chain targets).
+    model.config = replace(model.config, w_chain=0.0)
     procs = [p for d in args.data for p in list_procedures(d)]
     truth, predicted = [], []
     for _, frames, depths, motions, K in triplets(procs, model.config.pair_gap_s, args.every):

@@ -37,7 +37,7 @@ from hybrid.npyio import NpyRows, NpyWriter
 from hybrid.reconstruction import ReconstructionConfig, reconstruct
 from hybrid.segment_geometry import local_segment_coverage, save_maps
 from hybrid.types import Camera, InputError
-from learned.coverage_data import file_tag
+from learned.checkpoint import file_tag
 from learned.coverage_eval import CLASS_EDGES
 from learned.coverage_nets import (
     CoverageModel,

@@ -6,6 +6,7 @@ version sit in its metadata. Writes go to a temporary file that is renamed when 
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 from pathlib import Path
@@ -105,3 +106,8 @@ def export_weights(checkpoint: Path, dest: Path, kind: str = "depth") -> Path:
     save_file(weights, str(tmp), metadata=meta)
     os.replace(tmp, dest)
     return dest
+
+
+def file_tag(path: Path) -> str:
+    """First 12 hex digits of a file's SHA-256."""
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()[:12]

@@ -71,7 +71,9 @@ class DepthConfig:
     of the motion net's own estimates over the chain_steps steps between them (no gradient
     through the chain); 0: off."""
     chain_steps: int = 9
-    """Steps of the chain term: frames previous + round(j * gap / chain_steps), j = 0 ... ."""
+    """Steps of the chain term: frames previous + round(j * gap / chain_steps), j = 0 ... . The
+    steps are single frames when chain_steps equals the pair gap in frames (9 at 30 fps); a
+    gap shorter than chain_steps is refused."""
     chain_teacher: str = "self"
     """Whose small-step estimates the chain term composes: "self" (the model being trained) or
     "init" (the `init` model, frozen, so that they cannot drift with training)."""

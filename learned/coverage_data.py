@@ -13,7 +13,6 @@ written atomically.
 
 from __future__ import annotations
 
-import hashlib
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -98,11 +97,6 @@ def procedure_samples(path: Path, config: CoverageConfig, depth_model: DepthMode
         window_starts=windows[:, 0].astype(int), window_labels=windows[:, 1],
         segment_starts=np.array([s.start for s in truth.segments], dtype=int),
         segment_labels=truth.segment_labels())
-
-
-def file_tag(path: Path) -> str:
-    """First 12 hex digits of a file's SHA-256."""
-    return hashlib.sha256(Path(path).read_bytes()).hexdigest()[:12]
 
 
 def _inputs(proc: Procedure, config: CoverageConfig, depth_model: DepthModel | None,

@@ -19,8 +19,9 @@ import torch
 from tqdm import tqdm
 
 from hybrid.types import InputError
+from learned.checkpoint import file_tag
 from learned.config import CoverageConfig
-from learned.coverage_data import ProcedureSamples, file_tag, procedure_samples
+from learned.coverage_data import ProcedureSamples, procedure_samples
 from learned.coverage_eval import Predictions, coverage_metrics, format_table, scatter_plots
 from learned.coverage_nets import CoverageModel, load_coverage_model
 from learned.device import device_of

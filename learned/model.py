@@ -91,8 +91,10 @@ def chained_rotation(model: DepthModel, frames: torch.Tensor) -> torch.Tensor:
     batch, count = chain.shape[:2]
     training = model.motion.training
     model.motion.eval()
-    steps = model.pair_transform(chain[:, 1:].flatten(0, 1), chain[:, :-1].flatten(0, 1))[0]
-    model.motion.train(training)
+    try:
+        steps = model.pair_transform(chain[:, 1:].flatten(0, 1), chain[:, :-1].flatten(0, 1))[0]
+    finally:
+        model.motion.train(training)
     steps = steps.unflatten(0, (batch, count - 1))  # frame k+1 -> frame k
     composed = steps[:, 0]
     for k in range(1, count - 1):

@@ -22,6 +22,7 @@ from tqdm import tqdm
 from hybrid.types import InputError
 from learned.checkpoint import (
     export_weights,
+    file_tag,
     load_modules,
     load_optimizer,
     read_checkpoint,
@@ -66,6 +67,11 @@ class TripletSampler:
         self.gaps = [max(1, round(s.fps * self.pair_gap_s)) for s in self.sequences]
         self.counts = np.array([max(0, s.num_frames - 2 * g)
                                 for s, g in zip(self.sequences, self.gaps, strict=True)])
+        if self.chain_steps and min(self.gaps) < self.chain_steps:
+            short = self.sequences[int(np.argmin(self.gaps))]
+            raise InputError(f"{short.name}: its pair gap is {min(self.gaps)} frames, fewer than "
+                             f"the chain term's {self.chain_steps} steps; set chain_steps to at "
+                             f"most {min(self.gaps)} (--set chain_steps=N)")
         if self.counts.sum() == 0:
             raise InputError("inputs are too short: each needs more than 2 x pair gap frames "
                              "(image folders are taken at 30 frames/s unless --fps says "
@@ -136,14 +142,16 @@ def train_depth(data: list[Path], out: Path, config: DepthConfig, val: list[Path
     torch.manual_seed(config.seed)
     model = DepthModel(config).to(device)
     optimizer = torch.optim.Adam(model.parameters(), lr=config.learning_rate)
+    teacher = model
+    if config.w_chain and config.chain_teacher == "init":
+        teacher = _frozen_teacher(config, out, device)
     if tensors is not None:
         load_modules(tensors, {"depth": model.depth, "motion": model.motion}, path)
         load_optimizer(tensors, meta, optimizer)
     elif config.init:
-        model.load_state_dict(load_depth_model(Path(config.init), config.preset, device)
-                              .state_dict())
-    teacher = load_depth_model(Path(config.init), config.preset, device) \
-        if config.w_chain and config.chain_teacher == "init" else model
+        init = teacher if teacher is not model else \
+            load_depth_model(Path(config.init), config.preset, device)
+        model.load_state_dict(init.state_dict())
     (out / "config.json").write_text(json.dumps(config.to_dict(), indent=1) + "\n")
     metrics_log = (out / "metrics.jsonl").open("a")
     model.train()
@@ -185,6 +193,17 @@ def train_depth(data: list[Path], out: Path, config: DepthConfig, val: list[Path
     metrics_log.close()
     export_weights(path, out / WEIGHTS)
     return path
+
+
+def _frozen_teacher(config: DepthConfig, out: Path, device: torch.device | str) -> DepthModel:
+    """The init model as the chain term's teacher. Its file's SHA-256 prefix is kept in the run
+    folder, and a resumed run refuses a teacher that changed since."""
+    tag, record = file_tag(config.init), out / "teacher.json"
+    if record.is_file() and json.loads(record.read_text())["sha256_12"] != tag:
+        raise InputError(f"{config.init} changed since the run in {out} began (it is the chain "
+                         f"term's teacher); restore it or start a new run")
+    record.write_text(json.dumps({"init": config.init, "sha256_12": tag}) + "\n")
+    return load_depth_model(Path(config.init), config.preset, device)
 
 
 def _resumed_config(saved: DepthConfig, asked: DepthConfig, step: int, path: Path
