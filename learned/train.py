@@ -198,6 +198,9 @@ def train_depth(data: list[Path], out: Path, config: DepthConfig, val: list[Path
 def _frozen_teacher(config: DepthConfig, out: Path, device: torch.device | str) -> DepthModel:
     """The init model as the chain term's teacher. Its file's SHA-256 prefix is kept in the run
     folder, and a resumed run refuses a teacher that changed since."""
+    if not Path(config.init).is_file():
+        raise InputError(f"{config.init}: no such model, and it is the chain term's teacher of "
+                         f"the run in {out}")
     tag, record = file_tag(config.init), out / "teacher.json"
     if record.is_file() and json.loads(record.read_text())["sha256_12"] != tag:
         raise InputError(f"{config.init} changed since the run in {out} began (it is the chain "

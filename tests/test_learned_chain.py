@@ -166,3 +166,6 @@ def test_train_depth_logs_the_chain_term_with_either_teacher(tmp_path, clip):
     export_weights(other, tmp_path / "base.safetensors")
     with pytest.raises(InputError, match="changed since the run"):
         train_depth([clip], tmp_path / "init", replace(config, steps=3), progress=False)
+    (tmp_path / "base.safetensors").unlink()
+    with pytest.raises(InputError, match="no such model"):
+        train_depth([clip], tmp_path / "init", replace(config, steps=3), progress=False)
