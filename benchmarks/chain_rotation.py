@@ -23,6 +23,7 @@ from kornia.geometry.conversions import rotation_matrix_to_axis_angle
 
 from hybrid.dataset import list_procedures
 from learned.checkpoints import SHIPPED_DEPTH
+from learned.geometry import compose_chain
 from learned.model import load_depth_model, to_tensor
 
 
@@ -34,13 +35,7 @@ def degrees(transforms: torch.Tensor) -> np.ndarray:
 def chained(steps: torch.Tensor, starts: np.ndarray, gap: int, step: int) -> torch.Tensor:
     """(N, 4, 4) transforms from frame s + gap back to frame s, composed from steps[i]: frame
     i + step -> frame i."""
-    out = []
-    for s in starts:
-        T = torch.eye(4, dtype=steps.dtype)
-        for i in range(s, s + gap, step):
-            T = T @ steps[i]
-        out.append(T)
-    return torch.stack(out)
+    return compose_chain(steps[starts[:, None] + np.arange(0, gap, step)[None]])
 
 
 def main() -> None:

@@ -33,6 +33,15 @@ def mean_transform(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
     return mean
 
 
+def compose_chain(steps: torch.Tensor) -> torch.Tensor:
+    """(B, 4, 4) product steps[:, 0] @ steps[:, 1] @ ... of (B, n, 4, 4) transforms: with step k
+    mapping frame k+1 into frame k, the transform from frame n into frame 0."""
+    composed = steps[:, 0]
+    for k in range(1, steps.shape[1]):
+        composed = composed @ steps[:, k]
+    return composed
+
+
 @dataclass
 class Warp:
     """A source image warped into the target view."""

@@ -13,7 +13,7 @@ from torch import nn
 from learned.checkpoint import load_model
 from learned.config import DepthConfig
 from learned.flow import flows_to_sources
-from learned.geometry import mean_transform, transform_from
+from learned.geometry import compose_chain, mean_transform, transform_from
 from learned.losses import LossTerms, view_synthesis_loss
 from learned.nets import DepthNet, MotionNet
 
@@ -95,10 +95,7 @@ def chained_rotation(model: DepthModel, frames: torch.Tensor) -> torch.Tensor:
         steps = model.pair_transform(chain[:, 1:].flatten(0, 1), chain[:, :-1].flatten(0, 1))[0]
     finally:
         model.motion.train(training)
-    steps = steps.unflatten(0, (batch, count - 1))  # frame k+1 -> frame k
-    composed = steps[:, 0]
-    for k in range(1, count - 1):
-        composed = composed @ steps[:, k]
+    composed = compose_chain(steps.unflatten(0, (batch, count - 1)))  # frame k+1 -> frame k
     return rotation_matrix_to_axis_angle(composed[:, :3, :3].float())
 
 
