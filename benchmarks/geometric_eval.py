@@ -33,7 +33,7 @@ from hybrid.reconstruction import ReconstructionConfig, ScaledDepth, reconstruct
 from hybrid.segment_geometry import local_segment_coverage
 from learned.coverage_eval import three_class
 from learned.frames import open_sequence
-from learned.infer import infer_sequence, relative_poses
+from learned.infer import infer_sequence
 from learned.metrics import umeyama_sim3
 from learned.model import load_depth_model
 from learned.train import expand_inputs
@@ -72,14 +72,12 @@ def run_procedure(proc: Procedure, model, graph: PoseGraphConfig, config: Recons
         tic = time.time()
         if mode.startswith("learned") and not learned:
             seq = open_sequence(proc.path, (model.config.height, model.config.width))
-            inferred = infer_sequence(model, seq)
-            skips = tuple(g for g in graph.skips if g > 1)
-            relative = {1: inferred.relative,
-                        **(relative_poses(model, seq, skips) if skips else {})}
+            inferred = infer_sequence(model, seq, tuple(sorted({1, *graph.skips})))
             learned.update(depth=list(inferred.depth), K=np.median(inferred.K_pairs, axis=0),
                            network_s=time.time() - tic)
             graph_tic = time.time()
-            learned["poses"] = smooth_trajectory(relative, graph, name=str(proc.path)).poses
+            learned["poses"] = smooth_trajectory(inferred.relative, graph,
+                                                 name=str(proc.path)).poses
             learned["graph_s"] = time.time() - graph_tic
         if mode.startswith("learned"):  # both learned modes: pose graph included, networks not
             tic = time.time() - learned["graph_s"]

@@ -22,7 +22,7 @@ from fusion.posegraph import PoseGraphConfig, smooth_trajectory
 from hybrid.dataset import list_procedures
 from learned.checkpoints import SHIPPED_DEPTH
 from learned.frames import open_sequence
-from learned.infer import relative_poses
+from learned.infer import infer_sequence
 from learned.metrics import trajectory_errors
 from learned.model import DepthModel, load_depth_model
 
@@ -36,7 +36,7 @@ def network_relative(model: DepthModel, path: Path, frames: int, gaps: tuple[int
     seq = open_sequence(path, SIZE)
     count = min(frames, seq.num_frames)
     start = time.perf_counter()
-    relative = relative_poses(model, seq, gaps, frames=range(count))
+    relative = infer_sequence(model, seq, gaps, depth=False, frames=range(count)).relative
     return relative, seq.poses[:count], time.perf_counter() - start
 
 

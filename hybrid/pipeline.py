@@ -45,10 +45,9 @@ from learned.coverage_nets import (
     normalise_depth,
     resample_features,
 )
-from learned.device import device_of
 from learned.frames import IMAGE_SUFFIXES, FrameSequence, check_fps
-from learned.infer import aggregate_intrinsics, predicted_depth, relative_poses
-from learned.model import DepthModel, load_depth_model, to_tensor
+from learned.infer import aggregate_intrinsics, infer_sequence
+from learned.model import DepthModel, load_depth_model
 from learned.travel import no_travel, travel_features
 
 log = logging.getLogger(__name__)
@@ -159,16 +158,15 @@ class _Run:
     def depth_stage(self) -> None:
         seq = self.sequence()
         depth = NpyWriter(self.path(W.DEPTH), (seq.num_frames, *self.size), np.float16)
-        model = self.models.depth
-        predicted_depth(model, seq, progress=self.progress, out=depth)
-        gaps = tuple(g for g in sorted({*self.config.posegraph.skips, self.travel_gap} - {0})
+        gaps = tuple(g for g in sorted({1, *self.config.posegraph.skips, self.travel_gap} - {0})
                      if g < seq.num_frames)
-        relative = relative_poses(model, seq, gaps, progress=self.progress)
+        result = infer_sequence(self.models.depth, seq, gaps, depth_out=depth,
+                                progress=self.progress)
         np.savez(self.path(W.RELATIVE + ".partial.npz"),
-                 **{f"gap{g}": r for g, r in relative.items()})
+                 **{f"gap{g}": r for g, r in result.relative.items()})
         self.path(W.RELATIVE + ".partial.npz").replace(self.path(W.RELATIVE))
         W.write_json(self.path(W.INTRINSICS), aggregate_intrinsics(
-            _sample_intrinsics(model, seq), self.size, seq.crop, seq.fps))
+            result.K_pairs, self.size, seq.crop, seq.fps))
         depth.close()  # last: its presence marks the stage complete
 
     def posegraph(self) -> None:
@@ -213,8 +211,8 @@ class _Run:
         with np.load(self.path(W.RELATIVE)) as data:
             relative = data[f"gap{gap}"] if f"gap{gap}" in data.files else None
         if relative is None:  # a depth stage run for a model without this gap
-            relative = relative_poses(self.models.depth, self.sequence(), (gap,),
-                                      progress=self.progress)[gap]
+            relative = infer_sequence(self.models.depth, self.sequence(), (gap,), depth=False,
+                                      progress=self.progress).relative[gap]
         return travel_features(relative, count, self.config.reconstruction.lumen.withdrawal,
                                name=str(self.path(W.RELATIVE)))
 
@@ -255,15 +253,6 @@ class _Run:
     def network_K(self) -> np.ndarray:
         data = json.loads(self.path(W.INTRINSICS).read_text())
         return Camera(self.size[1], self.size[0], **data["network"]).K
-
-
-@torch.no_grad()
-def _sample_intrinsics(model: DepthModel, seq: FrameSequence, pairs: int = 64) -> np.ndarray:
-    """K (M, 3, 3) of up to `pairs` consecutive pairs spread over the video."""
-    starts = np.unique(np.linspace(0, seq.num_frames - 2, pairs).astype(int))
-    a = to_tensor(np.stack([seq.frame(t) for t in starts]), device_of(model))
-    b = to_tensor(np.stack([seq.frame(t + 1) for t in starts]), device_of(model))
-    return model.pair_motion(a, b)[-1].cpu().numpy().astype(np.float64)
 
 
 def video_features(source: Path, work: Path, config: RunConfig, models: Models,

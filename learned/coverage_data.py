@@ -25,7 +25,7 @@ from hybrid.types import InputError
 from learned.config import CoverageConfig
 from learned.coverage_nets import normalise_depth
 from learned.frames import FrameSequence, open_sequence
-from learned.infer import predicted_depth, relative_poses
+from learned.infer import infer_sequence
 from learned.model import DepthModel
 from learned.travel import no_travel, travel_features
 
@@ -54,7 +54,7 @@ class ProcedureSamples:
 def video_inputs(seq: FrameSequence, depth_model: DepthModel, config: CoverageConfig,
                  progress: bool = False) -> np.ndarray:
     """Normalised per-frame inputs (N, 1, h, w) of any frame sequence, from predicted depth."""
-    depth = predicted_depth(depth_model, seq, progress=progress)
+    depth = infer_sequence(depth_model, seq, (), progress=progress).depth
     return normalise_depth(depth, seq.region, (config.height, config.width), name=seq.name,
                            by_median=config.median_normalise)
 
@@ -122,7 +122,7 @@ def _relative(proc: Procedure, gap: int, depth_model: DepthModel | None, progres
     if depth_model is None:
         raise InputError("the travel input needs a depth model (its motion network)")
     seq = open_sequence(proc.path, (depth_model.config.height, depth_model.config.width))
-    return relative_poses(depth_model, seq, (gap,), progress=progress)[gap]
+    return infer_sequence(depth_model, seq, (gap,), depth=False, progress=progress).relative[gap]
 
 
 def _window_labels(proc: Procedure, frames: int, stride: int, progress: bool) -> np.ndarray:

@@ -34,7 +34,7 @@ def evaluate_sequence(model: DepthModel, seq: FrameSequence, depth_frames: int =
     if seq.num_frames < 3:
         raise InputError(f"{seq.name}: needs at least 3 frames for trajectory errors")
     window = range(0, min(seq.num_frames, trajectory_frames))
-    result = infer_sequence(model, seq, frames=window)
+    result = infer_sequence(model, seq, depth=False, frames=window)
     picks = np.linspace(0, seq.num_frames - 1, depth_frames).round().astype(int)
     with torch.no_grad():
         depths = model.depth(to_tensor(np.stack([seq.frame(t) for t in picks]),

@@ -1,6 +1,7 @@
 """Depth, ego-motion and intrinsics for a video, an image folder or a simulated procedure.
 
-Writes into the output folder:
+`infer_sequence` runs both networks in one pass over the frames, decoding each frame once.
+`infer_to_folder` writes into the output folder:
     depth/000000.npy       float32 (H, W) depth at the network's size, over the cropped region
     region.png             the detected image region (white) at the network's size
     relative_poses.npy     (N-1, 4, 4) transform mapping camera t's points into camera t+1
@@ -14,6 +15,7 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Protocol
 
 import cv2
 import numpy as np
@@ -26,9 +28,16 @@ from learned.frames import Crop, FrameSequence
 from learned.model import DepthModel, to_tensor
 
 
+class RowSink(Protocol):
+    """Where depth is streamed: rows assigned in order by slices (an array, DepthFiles,
+    hybrid.npyio.NpyWriter)."""
+
+    def __setitem__(self, rows: slice, values: np.ndarray) -> None: ...
+
+
 class DepthFiles:
-    """depth/NNNNNN.npy files, written as slices of frames are assigned (infer_sequence's
-    depth_out), so that a long video's depth never sits in memory."""
+    """depth/NNNNNN.npy files, written as slices of frames are assigned, so that a long
+    video's depth never sits in memory."""
 
     def __init__(self, folder: Path):
         self.folder = Path(folder)
@@ -41,96 +50,68 @@ class DepthFiles:
 
 @dataclass
 class DepthOutput:
-    """Everything inferred for one input, at the network's size."""
+    """Everything inferred for one input (or a range of its frames), at the network's size."""
 
-    depth: np.ndarray | DepthFiles
-    """(N, H, W) float32, or the files it was written to."""
-    relative: np.ndarray
-    """(N-1, 4, 4) float64, camera t -> camera t+1."""
-    K_pairs: np.ndarray
-    """(N-1, 3, 3) per-pair intrinsics at the network's size."""
+    depth: np.ndarray | RowSink | None
+    """(N, H, W) float32, or the sink it was written to; None when depth was not asked for."""
+    relative: dict[int, np.ndarray]
+    """{g: (N-g, 4, 4) float64}: entry t maps points of camera t into camera t+g."""
+    K_pairs: np.ndarray | None
+    """(N-g, 3, 3) intrinsics of the pairs of the smallest gap g (None without gaps)."""
 
     @property
     def poses(self) -> np.ndarray:
-        """(N, 4, 4) camera-to-world poses chained from the relative ones."""
-        return chain_poses(self.relative)
+        """(N, 4, 4) camera-to-world poses chained from the consecutive relative ones."""
+        return chain_poses(self.relative[1])
 
 
 @torch.no_grad()
-def infer_sequence(model: DepthModel, seq: FrameSequence, batch: int = 16,
-                   progress: bool = False, frames: range | None = None,
-                   depth_out: DepthFiles | None = None) -> DepthOutput:
-    """Run the networks over consecutive frames of seq (all, or the given range). Depth is
-    kept in the result, or written into depth_out (index 0: the range's first frame)."""
+def infer_sequence(model: DepthModel, seq: FrameSequence, gaps: tuple[int, ...] = (1,), *,
+                   depth: bool = True, depth_out: RowSink | None = None,
+                   frames: range | None = None, batch: int = 16, progress: bool = False
+                   ) -> DepthOutput:
+    """Depth of the frames of seq (all, or the given range) and the relative poses of the
+    frame pairs (t, t+g) for every gap g, each the mean of the forward and the inverted
+    backward estimate (DepthModel.pair_transform).
+
+    Depth is kept in the result, or written into depth_out (row 0: the range's first frame),
+    or skipped (depth=False). The last max(gaps) frames of each batch are kept for the pairs
+    that reach into the next, so each frame is decoded once.
+    """
     model.eval()
     frames = range(seq.num_frames) if frames is None else frames
-    if len(frames) < 2:
+    if any(g < 1 for g in gaps):
+        raise InputError(f"relative-pose gaps must be positive frame counts, got {gaps}")
+    if gaps and len(frames) < 2:
         raise InputError(f"{seq.name}: depth and motion need at least 2 frames")
-    depth, relative, K_pairs = [], [], []
-    previous = None
+    reach, smallest = max(gaps, default=0), min(gaps, default=0)
+    kept: list[np.ndarray] = []
+    relative: dict[int, list[np.ndarray]] = {g: [np.empty((0, 4, 4))] for g in gaps}
+    K_pairs: list[np.ndarray] = [np.empty((0, 3, 3))]
+    tail = None  # the last `reach` frames of the batches before, as tensors
     for start in tqdm(range(frames.start, frames.stop, batch), desc=f"depth {seq.name}",
                       disable=not progress, unit="batch"):
         ids = range(start, min(start + batch, frames.stop))
         images = to_tensor(np.stack([seq.frame(i) for i in ids]), device_of(model))
-        predicted = model.depth(images)[:, 0].cpu().numpy()
-        if depth_out is None:
-            depth.append(predicted)
-        else:
-            depth_out[ids.start - frames.start:ids.stop - frames.start] = predicted
-        chain = images if previous is None else torch.cat([previous, images])
-        if len(chain) > 1:
-            T, K = model.pair_transform(chain[:-1], chain[1:])
-            relative.append(T.cpu().numpy())
-            K_pairs.append(K.cpu().numpy())
-        previous = images[-1:]
-    return DepthOutput(np.concatenate(depth) if depth_out is None else depth_out,
-                       np.concatenate(relative), np.concatenate(K_pairs).astype(np.float64))
-
-
-@torch.no_grad()
-def relative_poses(model: DepthModel, seq: FrameSequence, gaps: tuple[int, ...], batch: int = 16,
-                   frames: range | None = None, progress: bool = False) -> dict[int, np.ndarray]:
-    """Relative poses of frame pairs (t, t+g) for every gap g, over all frames or the range.
-
-    Returns {g: (M-g, 4, 4) float64}, M the number of frames: entry t maps points of frame t's
-    camera into frame t+g's (fusion.posegraph's input). Each is the mean of the forward and
-    the inverted backward estimate. Frames are decoded once per batch of first frames.
-    """
-    model.eval()
-    frames = range(seq.num_frames) if frames is None else frames
-    if len(frames) < 2:
-        raise InputError(f"{seq.name}: relative poses need at least 2 frames")
-    if not gaps or any(g < 1 for g in gaps):
-        raise InputError(f"relative-pose gaps must be positive frame counts, got {gaps}")
-    relative = {g: [np.empty((0, 4, 4))] for g in gaps}
-    for start in tqdm(range(frames.start, frames.stop, batch), desc=f"motion {seq.name}",
-                      disable=not progress, unit="batch"):
-        stop = min(start + batch + max(gaps), frames.stop)
-        images = to_tensor(np.stack([seq.frame(i) for i in range(start, stop)]),
-                           device_of(model))
-        for g in gaps:
-            firsts = min(batch, len(images) - g)
-            if firsts <= 0:
-                continue
-            T = model.pair_transform(images[:firsts], images[g:g + firsts])[0]
-            relative[g].append(T.cpu().numpy())
-    return {g: np.concatenate(stacks) for g, stacks in relative.items()}
-
-
-@torch.no_grad()
-def predicted_depth(model: DepthModel, seq: FrameSequence, batch: int = 32,
-                    progress: bool = False, out: np.ndarray | None = None) -> np.ndarray:
-    """(N, H, W) depth of every frame of seq at the depth network's size, written in order
-    into `out` (e.g. a file writer, to stream a long video) when given."""
-    model.eval()
-    if out is None:
-        out = np.empty((seq.num_frames, *seq.size), dtype=np.float32)
-    for start in tqdm(range(0, seq.num_frames, batch), desc=f"depth {Path(seq.name).name}",
-                      unit="batch", disable=not progress):
-        ids = range(start, min(start + batch, seq.num_frames))
-        images = to_tensor(np.stack([seq.frame(i) for i in ids]), device_of(model))
-        out[ids.start:ids.stop] = model.depth(images)[:, 0].cpu().numpy()
-    return out
+        if depth:
+            predicted = model.depth(images)[:, 0].cpu().numpy()
+            if depth_out is None:
+                kept.append(predicted)
+            else:
+                depth_out[ids.start - frames.start:ids.stop - frames.start] = predicted
+        window = images if tail is None else torch.cat([tail, images])
+        first = ids.stop - len(window)  # the frame window[0] shows
+        for g in gaps:  # pairs whose second frame is in this batch
+            second = max(ids.start, frames.start + g) - first
+            if second < len(window):
+                T, K = model.pair_transform(window[second - g:len(window) - g], window[second:])
+                relative[g].append(T.cpu().numpy())
+                if g == smallest:
+                    K_pairs.append(K.cpu().numpy())
+        tail = window[max(len(window) - reach, 0):] if reach else None
+    depth_result = (np.concatenate(kept) if depth_out is None else depth_out) if depth else None
+    return DepthOutput(depth_result, {g: np.concatenate(r) for g, r in relative.items()},
+                       np.concatenate(K_pairs).astype(np.float64) if gaps else None)
 
 
 def aggregate_intrinsics(K_pairs: np.ndarray, size: tuple[int, int], crop: Crop, fps: float
@@ -162,7 +143,7 @@ def infer_to_folder(model: DepthModel, seq: FrameSequence, out: Path, progress: 
     out = Path(out)
     result = infer_sequence(model, seq, progress=progress, depth_out=DepthFiles(out / "depth"))
     cv2.imwrite(str(out / "region.png"), seq.region.astype(np.uint8) * 255)
-    np.save(out / "relative_poses.npy", result.relative)
+    np.save(out / "relative_poses.npy", result.relative[1])
     np.save(out / "poses.npy", result.poses)
     intrinsics = aggregate_intrinsics(result.K_pairs, seq.size, seq.crop, seq.fps)
     (out / "intrinsics.json").write_text(json.dumps(intrinsics, indent=1) + "\n")

@@ -14,9 +14,9 @@ from scipy.spatial.transform import Rotation
 from fusion.posegraph import PoseGraphConfig, check_converged, smooth_trajectory
 from hybrid.types import InputError
 from learned.frames import FrameSequence
-from learned.infer import infer_sequence, relative_poses
+from learned.infer import infer_sequence
 from learned.metrics import trajectory_errors
-from learned.model import DepthModel
+from learned.model import DepthModel, to_tensor
 
 SKIPS = (1, 2, 4, 8)
 NOISE = PoseGraphConfig(rotation_sigma=0.01, translation_sigma=0.1, gap_exponent=0.0,
@@ -147,16 +147,23 @@ def test_a_result_that_is_not_finite_or_got_worse_is_not_converged():
 
 
 @pytest.mark.usefixtures("one_thread")
-def test_relative_poses_pair_frames_across_batches():
+def test_inference_pairs_frames_across_batches():
     rng = np.random.default_rng(0)
     images = rng.integers(0, 256, (11, TINY.height, TINY.width, 3), dtype=np.uint8)
     seq = FrameSequence("noise", 30.0, (TINY.height, TINY.width), images.__getitem__, 11,
                         region=np.ones(images.shape[1:3], bool))
     torch.manual_seed(0)
     model = DepthModel(TINY)
-    relative = relative_poses(model, seq, (1, 3), batch=4, frames=range(1, 11))
+    result = infer_sequence(model, seq, (1, 3), batch=4, frames=range(1, 11))
+    relative = result.relative
     assert {g: r.shape for g, r in relative.items()} == {1: (9, 4, 4), 3: (7, 4, 4)}
+    assert result.depth.shape == (10, TINY.height, TINY.width)
+    assert result.K_pairs.shape == (9, 3, 3)
     np.testing.assert_allclose(relative[1], infer_sequence(model, seq, frames=range(1, 11)
-                                                           ).relative, atol=1e-5)
-    alone = relative_poses(model, seq, (3,), batch=1, frames=range(5, 9))[3]
-    np.testing.assert_allclose(relative[3][4], alone[0], atol=1e-5)
+                                                           ).relative[1], atol=1e-5)
+    alone = infer_sequence(model, seq, (3,), depth=False, batch=1, frames=range(5, 9))
+    assert alone.depth is None
+    np.testing.assert_allclose(relative[3][4], alone.relative[3][0], atol=1e-5)
+    with torch.no_grad():
+        pair = model.pair_transform(*(to_tensor(images[[t]]) for t in (8, 9)))[0].numpy()
+    np.testing.assert_allclose(relative[1][7], pair[0], atol=1e-5)
