@@ -1,7 +1,7 @@
 """Pose-graph smoothing of a monocular trajectory from network relative poses (GTSAM).
 
 Reads relative poses `relative[g]` (N-g, 4, 4): relative[g][t] maps points of camera t into
-camera t+g (learned.infer.relative_poses). Returns camera-to-world poses (N, 4, 4), float64,
+camera t+g (learned.infer.infer_sequence). Returns camera-to-world poses (N, 4, 4), float64,
 first pose = identity, that best agree with all of them under a robust (Huber) loss; the caller
 saves them (np.save).
 

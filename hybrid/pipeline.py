@@ -129,7 +129,7 @@ class _Run:
     def sequence(self) -> FrameSequence:
         """The ingested frames (already cut to the image region and resized)."""
         return FrameSequence.ingested(self.source.name, self.ingested, self.path(W.FRAMES),
-                                      np.ones(self.size, dtype=bool))
+                                      self.region)
 
     @property
     def segment_frames(self) -> int:

@@ -54,7 +54,7 @@ class ProcedureSamples:
 def video_inputs(seq: FrameSequence, depth_model: DepthModel, config: CoverageConfig,
                  progress: bool = False) -> np.ndarray:
     """Normalised per-frame inputs (N, 1, h, w) of any frame sequence, from predicted depth."""
-    depth = infer_sequence(depth_model, seq, (), progress=progress).depth
+    depth = infer_sequence(depth_model, seq, gaps=(), progress=progress).depth
     return normalise_depth(depth, seq.region, (config.height, config.width), name=seq.name,
                            by_median=config.median_normalise)
 

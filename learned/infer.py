@@ -55,13 +55,15 @@ class DepthOutput:
     depth: np.ndarray | RowSink | None
     """(N, H, W) float32, or the sink it was written to; None when depth was not asked for."""
     relative: dict[int, np.ndarray]
-    """{g: (N-g, 4, 4) float64}: entry t maps points of camera t into camera t+g."""
+    """{g: (max(N-g, 0), 4, 4) float64}: entry t maps points of camera t into camera t+g."""
     K_pairs: np.ndarray | None
     """(N-g, 3, 3) intrinsics of the pairs of the smallest gap g (None without gaps)."""
 
     @property
     def poses(self) -> np.ndarray:
         """(N, 4, 4) camera-to-world poses chained from the consecutive relative ones."""
+        if 1 not in self.relative:
+            raise ValueError("poses are chained from gap 1, which was not inferred")
         return chain_poses(self.relative[1])
 
 
@@ -72,24 +74,32 @@ def infer_sequence(model: DepthModel, seq: FrameSequence, gaps: tuple[int, ...] 
                    ) -> DepthOutput:
     """Depth of the frames of seq (all, or the given range) and the relative poses of the
     frame pairs (t, t+g) for every gap g, each the mean of the forward and the inverted
-    backward estimate (DepthModel.pair_transform).
+    backward estimate (DepthModel.pair_transform); K_pairs are those of the smallest gap's
+    pairs. A gap longer than the range gives no pairs.
 
     Depth is kept in the result, or written into depth_out (row 0: the range's first frame),
-    or skipped (depth=False). The last max(gaps) frames of each batch are kept for the pairs
-    that reach into the next, so each frame is decoded once.
+    or skipped (depth=False). The last max(gaps) decoded frames are kept for the pairs that
+    reach into the next batch, so each frame is decoded once.
     """
     model.eval()
     frames = range(seq.num_frames) if frames is None else frames
+    gaps = tuple(sorted(set(gaps)))
     if any(g < 1 for g in gaps):
         raise InputError(f"relative-pose gaps must be positive frame counts, got {gaps}")
+    if frames.step != 1 or not 0 <= frames.start < frames.stop <= seq.num_frames:
+        raise InputError(f"{seq.name}: frames {frames} is not a consecutive range of its "
+                         f"{seq.num_frames} frames")
     if gaps and len(frames) < 2:
         raise InputError(f"{seq.name}: depth and motion need at least 2 frames")
+    if not (depth or gaps) or (depth_out is not None and not depth):
+        raise ValueError("infer_sequence: ask for depth, or gaps, and depth_out only with "
+                         "depth")
     reach, smallest = max(gaps, default=0), min(gaps, default=0)
     kept: list[np.ndarray] = []
     relative: dict[int, list[np.ndarray]] = {g: [np.empty((0, 4, 4))] for g in gaps}
     K_pairs: list[np.ndarray] = [np.empty((0, 3, 3))]
     tail = None  # the last `reach` frames of the batches before, as tensors
-    for start in tqdm(range(frames.start, frames.stop, batch), desc=f"depth {seq.name}",
+    for start in tqdm(range(frames.start, frames.stop, batch), desc=f"infer {seq.name}",
                       disable=not progress, unit="batch"):
         ids = range(start, min(start + batch, frames.stop))
         images = to_tensor(np.stack([seq.frame(i) for i in ids]), device_of(model))

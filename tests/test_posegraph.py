@@ -1,5 +1,6 @@
 """fusion.posegraph on a known trajectory: noisy relative poses with outliers, noise-free
-input, windowed against batch, bad input; and learned.infer.relative_poses' pairs."""
+input, windowed against batch, bad input; and learned.infer.infer_sequence's pairs across
+batches."""
 
 from __future__ import annotations
 
