@@ -57,6 +57,8 @@ def main() -> None:
                         help="folder of simulated procedures")
     parser.add_argument("--frames", type=int, default=300, help="first N frames of each")
     parser.add_argument("--window", type=int, default=100, help="frames per window (windowed)")
+    parser.add_argument("--checkpoint", type=Path, default=SHIPPED_DEPTH,
+                        help="depth model (default: the shipped one)")
     defaults = PoseGraphConfig()
     for field in ("rotation_sigma", "translation_sigma", "gap_exponent", "velocity_weight"):
         parser.add_argument("--" + field.replace("_", "-"), type=float,
@@ -67,7 +69,7 @@ def main() -> None:
                             translation_sigma=args.translation_sigma,
                             gap_exponent=args.gap_exponent, velocity_weight=args.velocity_weight)
     configs = {"batch": batch, f"window {args.window}": replace(batch, window=args.window)}
-    model = load_depth_model(SHIPPED_DEPTH)
+    model = load_depth_model(args.checkpoint)
     print(f"{batch}\n")
     print("| procedure | poses | ATE (cm) | RPE (cm) | RPE (deg) | seconds | frames/s |")
     print("| --- | --- | --- | --- | --- | --- | --- |")
