@@ -57,7 +57,7 @@ class DepthOutput:
     relative: dict[int, np.ndarray]
     """{g: (max(N-g, 0), 4, 4) float64}: entry t maps points of camera t into camera t+g."""
     K_pairs: np.ndarray | None
-    """(N-g, 3, 3) intrinsics of the pairs of the smallest gap g (None without gaps)."""
+    """(max(N-g, 0), 3, 3) intrinsics of the pairs of the smallest gap g (None without gaps)."""
 
     @property
     def poses(self) -> np.ndarray:
