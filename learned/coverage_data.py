@@ -13,6 +13,7 @@ written atomically.
 
 from __future__ import annotations
 
+import functools
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -25,7 +26,7 @@ from hybrid.types import InputError
 from learned.config import CoverageConfig
 from learned.coverage_nets import normalise_depth
 from learned.frames import FrameSequence, open_sequence
-from learned.infer import infer_sequence
+from learned.infer import DepthOutput, infer_sequence
 from learned.model import DepthModel
 from learned.travel import no_travel, travel_features
 
@@ -51,14 +52,6 @@ class ProcedureSamples:
     """(S,) their default-pair coverage."""
 
 
-def video_inputs(seq: FrameSequence, depth_model: DepthModel, config: CoverageConfig,
-                 progress: bool = False) -> np.ndarray:
-    """Normalised per-frame inputs (N, 1, h, w) of any frame sequence, from predicted depth."""
-    depth = infer_sequence(depth_model, seq, gaps=(), progress=progress).depth
-    return normalise_depth(depth, seq.region, (config.height, config.width), name=seq.name,
-                           by_median=config.median_normalise)
-
-
 def procedure_samples(path: Path, config: CoverageConfig, depth_model: DepthModel | None,
                       depth_tag: str, progress: bool = False) -> ProcedureSamples:
     """Inputs and labels of one simulated procedure (from its cache when present).
@@ -76,14 +69,18 @@ def procedure_samples(path: Path, config: CoverageConfig, depth_model: DepthMode
                          f"on {config.frame_rate:g} fps")
     cache = proc.path / "cache"
     size = f"{config.height}x{config.width}" + ("" if config.median_normalise else "-log")
-    if config.input_depth == "true":
-        name = f"input-true-{size}.npy"
-    else:
-        name = f"input-{depth_tag}-{size}.npy"
-    inputs = _cached(cache / name, lambda: _inputs(proc, config, depth_model, progress))
+    predicted = config.input_depth != "true"
+    inputs_path = cache / f"input-{depth_tag if predicted else 'true'}-{size}.npy"
+    relative_path = cache / f"relative-{depth_tag}-{config.travel_gap}.npy"
+    # One pass of the depth model for whichever of its two caches is missing.
+    missing_depth = predicted and not inputs_path.is_file()
+    missing_gap = config.travel_gap if config.travel_gap and not relative_path.is_file() else 0
+    network = functools.cache(lambda: _network_outputs(proc, depth_model, missing_depth,
+                                                       missing_gap, progress))
+    inputs = _cached(inputs_path, lambda: _predicted_inputs(*network(), config) if predicted
+                     else _true_inputs(proc, config))
     if config.travel_gap:
-        relative = _cached(cache / f"relative-{depth_tag}-{config.travel_gap}.npy",
-                           lambda: _relative(proc, config.travel_gap, depth_model, progress))
+        relative = _cached(relative_path, lambda: network()[1].relative[config.travel_gap])
         travel = travel_features(relative, len(inputs), name=str(proc.path))
     else:
         travel = no_travel(len(inputs))
@@ -99,30 +96,32 @@ def procedure_samples(path: Path, config: CoverageConfig, depth_model: DepthMode
         segment_labels=truth.segment_labels())
 
 
-def _inputs(proc: Procedure, config: CoverageConfig, depth_model: DepthModel | None,
-            progress: bool) -> np.ndarray:
-    if config.input_depth == "true":
-        depth = np.stack([proc.depth(i) for i in range(proc.num_frames)])
-        # No surface (looking out of the open rectum end): as far as the frame's farthest wall.
-        depth = np.where(depth > 0, depth, depth.max(axis=(1, 2), keepdims=True))
-        region = np.ones(depth.shape[1:], dtype=bool)
-        return normalise_depth(depth, region, (config.height, config.width),
-                               name=str(proc.path),
-                               by_median=config.median_normalise).astype(np.float16)
-    if depth_model is None:
-        raise InputError("predicted-depth inputs need a depth model")
-    size = (depth_model.config.height, depth_model.config.width)
-    return video_inputs(open_sequence(proc.path, size), depth_model, config,
-                        progress).astype(np.float16)
+def _true_inputs(proc: Procedure, config: CoverageConfig) -> np.ndarray:
+    """Normalised inputs (N, 1, h, w) float16 from the simulator's depth (the ablation)."""
+    depth = np.stack([proc.depth(i) for i in range(proc.num_frames)])
+    # No surface (looking out of the open rectum end): as far as the frame's farthest wall.
+    depth = np.where(depth > 0, depth, depth.max(axis=(1, 2), keepdims=True))
+    region = np.ones(depth.shape[1:], dtype=bool)
+    return normalise_depth(depth, region, (config.height, config.width), name=str(proc.path),
+                           by_median=config.median_normalise).astype(np.float16)
 
 
-def _relative(proc: Procedure, gap: int, depth_model: DepthModel | None, progress: bool
-              ) -> np.ndarray:
-    """(N - gap, 4, 4) relative poses of the frame pairs (t, t + gap), from the motion net."""
+def _network_outputs(proc: Procedure, depth_model: DepthModel | None, depth: bool, gap: int,
+                     progress: bool) -> tuple[FrameSequence, DepthOutput]:
+    """The procedure's frames and, in one pass, the depth model's depth (if `depth`) and
+    relative poses of the frame pairs (t, t + gap) (if `gap`)."""
     if depth_model is None:
-        raise InputError("the travel input needs a depth model (its motion network)")
+        raise InputError("predicted-depth inputs and the travel input need a depth model")
     seq = open_sequence(proc.path, (depth_model.config.height, depth_model.config.width))
-    return infer_sequence(depth_model, seq, (gap,), depth=False, progress=progress).relative[gap]
+    return seq, infer_sequence(depth_model, seq, (gap,) if gap else (), depth=depth,
+                               progress=progress)
+
+
+def _predicted_inputs(seq: FrameSequence, output: DepthOutput, config: CoverageConfig
+                      ) -> np.ndarray:
+    """Normalised inputs (N, 1, h, w) float16 from the depth model's depth."""
+    return normalise_depth(output.depth, seq.region, (config.height, config.width),
+                           name=seq.name, by_median=config.median_normalise).astype(np.float16)
 
 
 def _window_labels(proc: Procedure, frames: int, stride: int, progress: bool) -> np.ndarray:
