@@ -5,10 +5,19 @@ Modes (each: pose graph where learned, TSDF, lumen fit, geometric coverage):
   oracle-s0.7   the same with every length scaled by 0.7 (the scale rule 30% short) ...
   oracle-s1.3   ... or 30% long: how coverage moves when the assumed radius is 30% off
   oracle-rule   true depth, K and poses, scale from the typical-radius rule
-  learned       the shipped depth model's depth, K and relative poses (gaps 1, 2, 4, 8),
-                smoothed by the pose graph, scale from the typical-radius rule
+  learned       the shipped depth model's depth, K and relative poses (the pose graph's
+                gaps, --skips), refined by RGB-D odometry (--no-odometry: not), smoothed by
+                the pose graph, scale from the typical-radius rule
   learned-local the same inputs, each segment reconstructed on its own window (the segment
                 and half a segment either side: hybrid.segment_geometry), as `c2d2 run` does
+Where the learned-local error comes from: each segment on its own window as in learned-local,
+with the metric scale taken from the truth (one factor per procedure, the median ratio of true
+to learned depth, applied to the learned depth and translations alike), and
+  local-oracle  every input true
+  local-metric  every input learned
+  local-depth   learned depth, true K and poses
+  local-K       learned K, true depth and poses
+  local-poses   learned (smoothed) poses, true depth and K
 Prints MAE, bias and 3-class accuracy per mode, the lumen fit errors, and the frames/s of the
 pose graph + TSDF + coverage; writes a JSON and a scatter plot.
 
@@ -25,6 +34,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from fusion.odometry import OdometryConfig, refine_relative_poses
 from fusion.posegraph import PoseGraphConfig, smooth_trajectory
 from hybrid.coverage import DEFAULT_PAIR_CM, Lumen, pair_key
 from hybrid.dataset import Procedure
@@ -38,7 +48,11 @@ from learned.metrics import umeyama_sim3
 from learned.model import load_depth_model
 from learned.train import expand_inputs
 
-MODES = ("oracle", "oracle-s0.7", "oracle-s1.3", "oracle-rule", "learned", "learned-local")
+LOCAL_SWAPS = {"local-oracle": (), "local-metric": ("depth", "K", "poses"),
+               "local-depth": ("depth",), "local-K": ("K",), "local-poses": ("poses",)}
+"""Diagnostic modes: which inputs are the learned ones (the rest true), scale from the truth."""
+BASIC_MODES = ("oracle", "oracle-s0.7", "oracle-s1.3", "oracle-rule", "learned", "learned-local")
+MODES = (*BASIC_MODES, *LOCAL_SWAPS)
 
 
 def lumen_errors(fitted_points: np.ndarray, fitted_radius: np.ndarray, proc: Procedure,
@@ -61,8 +75,19 @@ def lumen_errors(fitted_points: np.ndarray, fitted_radius: np.ndarray, proc: Pro
             "radius_error_cm": float(np.mean(fitted_radius[keep] - np.array(r_true)))}
 
 
-def run_procedure(proc: Procedure, model, graph: PoseGraphConfig, config: ReconstructionConfig,
-                  geometric: GeometricConfig, modes: tuple[str, ...] = MODES) -> dict:
+def depth_ratio(learned: list[np.ndarray], true: list[np.ndarray], stride: int = 10) -> float:
+    """The median ratio of true to learned depth over the pixels of every stride-th frame: the
+    factor that makes the learned depth (and translations, in the same unit) centimetres."""
+    ratios = []
+    for pred, gt in zip(learned[::stride], true[::stride], strict=True):
+        ok = (pred > 0) & (gt > 0)
+        ratios.append(gt[ok] / pred[ok])
+    return float(np.median(np.concatenate(ratios)))
+
+
+def run_procedure(proc: Procedure, model, graph: PoseGraphConfig, odometry: OdometryConfig,
+                  config: ReconstructionConfig, geometric: GeometricConfig,
+                  modes: tuple[str, ...] = MODES) -> dict:
     truth = proc.coverage.segment_labels()
     depth_true = [proc.depth(i) for i in range(proc.num_frames)]
     rgb = [proc.rgb(i) for i in range(proc.num_frames)]
@@ -70,22 +95,41 @@ def run_procedure(proc: Procedure, model, graph: PoseGraphConfig, config: Recons
     learned: dict = {}
     for mode in modes:
         tic = time.time()
-        if mode.startswith("learned") and not learned:
+        if (mode.startswith("learned") or mode in LOCAL_SWAPS) and not learned:
             seq = open_sequence(proc.path, (model.config.height, model.config.width))
             inferred = infer_sequence(model, seq, tuple(sorted({1, *graph.skips})))
             learned.update(depth=list(inferred.depth), K=np.median(inferred.K_pairs, axis=0),
                            network_s=time.time() - tic)
             graph_tic = time.time()
-            learned["poses"] = smooth_trajectory(inferred.relative, graph,
-                                                 name=str(proc.path)).poses
+            relative = inferred.relative
+            if odometry.enabled:
+                frames = [seq.frame(i) for i in range(seq.num_frames)]  # the network's size
+                refined = refine_relative_poses(relative, learned["depth"], frames,
+                                                learned["K"], config=odometry,
+                                                name=str(proc.path))
+                relative, learned["odometry_kept"] = refined.relative, refined.kept
+            learned["poses"] = smooth_trajectory(relative, graph, name=str(proc.path)).poses
             learned["graph_s"] = time.time() - graph_tic
-        if mode.startswith("learned"):  # both learned modes: pose graph included, networks not
+            learned["to_cm"] = depth_ratio(learned["depth"], depth_true)
+        if mode in ("learned", "learned-local", "local-metric"):  # pose graph timed, networks not
             tic = time.time() - learned["graph_s"]
-        if mode == "learned-local":
+        if mode == "learned-local" or mode in LOCAL_SWAPS:
             frames = proc.coverage.segment_frames
-            local = local_segment_coverage(learned["depth"], learned["K"], learned["poses"],
-                                           frames, frames // 2, None, config, geometric,
-                                           proc.camera.fps, proc.path.name)
+            if mode == "learned-local":
+                depth, K, poses, scale = (learned["depth"], learned["K"], learned["poses"],
+                                          None)
+            else:
+                swap = LOCAL_SWAPS[mode]
+                depth = learned["depth"] if "depth" in swap else depth_true
+                K = learned["K"] if "K" in swap else proc.camera.K
+                poses = learned["poses"] if "poses" in swap else proc.poses
+                if "poses" in swap and "depth" not in swap:  # translations to the true depth's cm
+                    poses = poses.copy()
+                    poses[:, :3, 3] *= learned["to_cm"]
+                scale = learned["to_cm"] if "depth" in swap else 1.0
+            local = local_segment_coverage(depth, K, poses, frames, frames // 2, None, config,
+                                           geometric, proc.camera.fps, proc.path.name,
+                                           scale=scale)
             key = pair_key(DEFAULT_PAIR_CM)
             pred = [np.nan if s.segment.coverage[key] is None else s.segment.coverage[key]
                     for s in local]
@@ -121,6 +165,8 @@ def run_procedure(proc: Procedure, model, graph: PoseGraphConfig, config: Recons
         print(f"{proc.path}: {mode:12s} scale {rec.scale:6.3f}  truth "
               f"{np.round(truth, 2).tolist()}  pred {np.round(row['pred'], 2).tolist()}  "
               f"{seconds:5.1f} s", flush=True)
+    if "odometry_kept" in learned:  # pairs the odometry could not align, per gap
+        out["odometry_kept"] = learned["odometry_kept"]
     return out
 
 
@@ -168,13 +214,16 @@ def main() -> None:
     parser.add_argument("--data", nargs="+", type=Path, default=[Path("data/test")])
     parser.add_argument("--out", type=Path, default=Path("docs/geometric"))
     parser.add_argument("--checkpoint", type=Path, default=None)
-    parser.add_argument("--modes", nargs="+", default=list(MODES), choices=MODES)
+    parser.add_argument("--modes", nargs="+", default=list(BASIC_MODES), choices=MODES,
+                        help="default: all but the local-* diagnostics")
     parser.add_argument("--occlusion-tolerance", type=float,
                         default=GeometricConfig().occlusion_tolerance,
                         help="GeometricConfig.occlusion_tolerance (× local radius)")
     parser.add_argument("--skips", type=int, nargs="+", default=list(PoseGraphConfig().skips),
                         help="PoseGraphConfig.skips: the frame gaps whose relative poses "
                              "become pose-graph factors")
+    parser.add_argument("--no-odometry", action="store_true",
+                        help="give the pose graph the network's relative poses unrefined")
     args = parser.parse_args()
     modes = tuple(args.modes)
     geometric = GeometricConfig(occlusion_tolerance=args.occlusion_tolerance)
@@ -183,8 +232,9 @@ def main() -> None:
 
     model = load_depth_model(args.checkpoint or SHIPPED_DEPTH)
     graph, config = PoseGraphConfig(skips=tuple(args.skips)), ReconstructionConfig()
+    odometry = OdometryConfig(enabled=not args.no_odometry)
     results = {f"{p.parent.name}/{p.name}": run_procedure(Procedure.open(p), model, graph,
-                                                           config, geometric, modes)
+                                                           odometry, config, geometric, modes)
                for p in expand_inputs(args.data)}
     table = summary(results, modes)
     args.out.mkdir(parents=True, exist_ok=True)

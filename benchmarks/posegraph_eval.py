@@ -1,9 +1,13 @@
-"""Trajectory error of the network's chained poses against pose-graph smoothing (batch, windowed).
+"""Trajectory error of the network's chained poses, of the RGB-D odometry's, and of pose-graph
+smoothing (batch, windowed).
 
-For each simulated procedure: relative poses of the shipped depth model for gaps (1, 2, 4, 8)
-over the first N frames, the chain of the gap-1 poses, and the pose graph smoothed in one batch
-and in windows; ATE and RPE (after Sim(3) alignment, in cm and degrees) against the true poses.
-The chain's seconds are the network's (relative poses for all gaps); the others, the smoothing's.
+For each simulated procedure, over the first N frames: the shipped depth model's depth, K and
+relative poses for gaps (1, 2, 4, 8); their gap-1 chain and their pose graph with those four
+gaps (the pipeline before 2026-11-23); the same relative poses refined by RGB-D odometry
+(fusion.odometry), their gap-1 chain, and the pose graph of the configured gaps (default: the
+pipeline's) in one batch and in windows. ATE and RPE (after Sim(3) alignment, in cm and
+degrees) against the true poses. Seconds: the network's (depth and all gaps) in the network
+chain's row, the odometry's in the odometry chain's, the smoothing's in the others.
 
     .venv/bin/python benchmarks/posegraph_eval.py --data data/test --frames 300
 """
@@ -18,6 +22,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from fusion.odometry import refine_relative_poses
 from fusion.posegraph import PoseGraphConfig, smooth_trajectory
 from hybrid.dataset import list_procedures
 from learned.checkpoints import SHIPPED_DEPTH
@@ -30,23 +35,36 @@ SIZE = (128, 160)
 METRICS = ("ate", "rpe_translation", "rpe_rotation_deg")
 
 
-def network_relative(model: DepthModel, path: Path, frames: int, gaps: tuple[int, ...]
-                     ) -> tuple[dict[int, np.ndarray], np.ndarray, float]:
-    """Relative poses over the first frames, the true poses there, and the seconds taken."""
+NETWORK_GAPS = (1, 2, 4, 8)
+
+
+def relative_poses(model: DepthModel, path: Path, frames: int, refine: tuple[int, ...]
+                   ) -> tuple[dict[str, dict[int, np.ndarray]], np.ndarray, dict[str, float]]:
+    """The network's relative poses and those of the gaps `refine` refined by odometry, over
+    the first frames; the true poses there; the seconds each took."""
     seq = open_sequence(path, SIZE)
     count = min(frames, seq.num_frames)
     start = time.perf_counter()
-    relative = infer_sequence(model, seq, gaps, depth=False, frames=range(count)).relative
-    return relative, seq.poses[:count], time.perf_counter() - start
+    inferred = infer_sequence(model, seq, NETWORK_GAPS, frames=range(count))
+    network_s = time.perf_counter() - start
+    start = time.perf_counter()
+    refined = refine_relative_poses({g: inferred.relative[g] for g in refine}, inferred.depth,
+                                    [seq.frame(i) for i in range(count)],
+                                    np.median(inferred.K_pairs, axis=0), seq.region,
+                                    name=path.name)
+    odometry_s = time.perf_counter() - start
+    return ({"network": inferred.relative, "odometry": refined.relative}, seq.poses[:count],
+            {"network": network_s, "odometry": odometry_s})
 
 
-def evaluate(relative: dict[int, np.ndarray], truth: np.ndarray,
-             configs: dict[str, PoseGraphConfig]) -> dict[str, dict[str, float]]:
-    """Errors of the gap-1 chain, and errors and seconds of each named smoothing."""
+def evaluate(relative: dict[str, dict[int, np.ndarray]], truth: np.ndarray,
+             configs: dict[str, tuple[str, PoseGraphConfig]]) -> dict[str, dict[str, float]]:
+    """Errors of each source's gap-1 chain, and errors and seconds of each named smoothing of
+    the (source, config) it names."""
     rows = {}
-    for name, config in configs.items():
-        result = smooth_trajectory(relative, config)
-        rows.setdefault("chain", trajectory_errors(result.chained, truth))
+    for name, (source, config) in configs.items():
+        result = smooth_trajectory(relative[source], config)
+        rows.setdefault(f"{source} chain", trajectory_errors(result.chained, truth))
         rows[name] = trajectory_errors(result.poses, truth) | {"seconds": result.seconds}
     return rows
 
@@ -68,16 +86,20 @@ def main() -> None:
     batch = PoseGraphConfig(rotation_sigma=args.rotation_sigma,
                             translation_sigma=args.translation_sigma,
                             gap_exponent=args.gap_exponent, velocity_weight=args.velocity_weight)
-    configs = {"batch": batch, f"window {args.window}": replace(batch, window=args.window)}
+    configs = {"network, batch, gaps 1-8": ("network", replace(batch, skips=NETWORK_GAPS)),
+               "odometry, batch": ("odometry", batch),
+               f"odometry, window {args.window}": ("odometry",
+                                                    replace(batch, window=args.window))}
     model = load_depth_model(args.checkpoint)
     print(f"{batch}\n")
     print("| procedure | poses | ATE (cm) | RPE (cm) | RPE (deg) | seconds | frames/s |")
     print("| --- | --- | --- | --- | --- | --- | --- |")
     table: dict[str, list[dict[str, float]]] = {}
     for proc in list_procedures(args.data):
-        relative, truth, seconds = network_relative(model, proc.path, args.frames, batch.skips)
+        relative, truth, seconds = relative_poses(model, proc.path, args.frames, batch.skips)
         rows = evaluate(relative, truth, configs)
-        rows["chain"]["seconds"] = seconds  # the network's relative poses, all gaps
+        for source, taken in seconds.items():  # the network's (all gaps), the odometry's
+            rows[f"{source} chain"]["seconds"] = taken
         for name, row in rows.items():
             table.setdefault(name, []).append(row)
             print(f"| {proc.path.name} | {name} | " + _cells(row, len(truth)))

@@ -1,6 +1,7 @@
 """The whole C2D2 pipeline on one recorded video, stage by stage, in a work directory.
 
-ingest -> depth (learned depth, K, relative poses) -> pose graph -> reconstruction (scale,
+ingest -> depth (learned depth, K, relative poses) -> pose graph (the relative poses refined
+by RGB-D odometry, then smoothed) -> reconstruction (scale,
 TSDF mesh, lumen) -> geometric coverage (+ unrolled maps) -> learned coverage -> cross-check
 and report. Each stage writes its files (hybrid.workdir) atomically and is skipped when they
 exist, so an interrupted run resumes where it stopped. Long arrays (frames, depth) are written
@@ -26,6 +27,7 @@ import cv2
 import numpy as np
 import torch
 
+from fusion.odometry import OdometryConfig, refine_relative_poses
 from fusion.posegraph import PoseGraphConfig, smooth_trajectory
 from hybrid import __version__
 from hybrid import workdir as W
@@ -70,6 +72,7 @@ class RunConfig:
     deficient_below: float = CLASS_EDGES[0]
     """A segment is deficient when its coverage (mean of the branches that ran) is below this:
     the 'mostly not covered' class of the 3-class bins."""
+    odometry: OdometryConfig = field(default_factory=OdometryConfig)
     posegraph: PoseGraphConfig = field(default_factory=PoseGraphConfig)
     reconstruction: ReconstructionConfig = field(default_factory=ReconstructionConfig)
     geometric: GeometricConfig = field(default_factory=GeometricConfig)
@@ -171,7 +174,17 @@ class _Run:
 
     def posegraph(self) -> None:
         with np.load(self.path(W.RELATIVE)) as data:
-            relative = {int(k[3:]): data[k] for k in data.files}
+            relative = {int(k[3:]): data[k] for k in data.files
+                        if int(k[3:]) in self.config.posegraph.skips}
+        if self.config.odometry.enabled:
+            refined = refine_relative_poses(relative, self.depth(), self.frames(),
+                                            self.network_K(), self.region, self.config.odometry,
+                                            name=str(self.source), progress=self.progress)
+            relative = refined.relative
+            W.write_json(self.path(W.ODOMETRY), {"pairs_kept_unrefined": refined.kept})
+            if any(refined.kept.values()):
+                log.warning("%s: RGB-D odometry could not align %s pairs (per gap); they keep "
+                            "the network's relative pose", self.source, refined.kept)
         result = smooth_trajectory(relative, self.config.posegraph, name=str(self.source))
         for name, poses in ((W.POSES_RAW, result.chained), (W.POSES, result.poses)):
             np.save(self.path(name + ".partial.npy"), poses)

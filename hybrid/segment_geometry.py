@@ -49,11 +49,13 @@ class LocalSegment:
 def local_segment_coverage(depth: Sequence[np.ndarray], K: np.ndarray, poses: np.ndarray,
                            segment_frames: int, context: int, region: np.ndarray | None,
                            reconstruction: ReconstructionConfig, geometric: GeometricConfig,
-                           fps: float = 30.0, name: str = "video") -> list[LocalSegment]:
+                           fps: float = 30.0, name: str = "video",
+                           scale: float | None = None) -> list[LocalSegment]:
     """Coverage of every full segment, each from a reconstruction of its own window.
 
-    depth and poses in one (any) unit; a segment whose window cannot be reconstructed (the
-    camera barely moves, no surface) gets coverage None and the reason.
+    depth and poses in one (any) unit, made metric by `scale` (cm per unit) or, if None, by
+    each window's scale rule; a segment whose window cannot be reconstructed (the camera
+    barely moves, no surface) gets coverage None and the reason.
     """
     n = len(poses)
     if n < segment_frames:
@@ -67,7 +69,7 @@ def local_segment_coverage(depth: Sequence[np.ndarray], K: np.ndarray, poses: np
         label = f"{name} segment {index}"
         try:
             rec = reconstruct(_Window(depth, first, last), K, local, region=region,
-                              config=reconstruction, fps=fps, name=label)
+                              config=reconstruction, scale=scale, fps=fps, name=label)
             result = geometric_coverage(
                 rec.lumen, rec.poses[start - first:stop - first],
                 ScaledDepth(_Window(depth, start, stop), rec.scale, region), K, region, config,

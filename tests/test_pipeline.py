@@ -133,7 +133,7 @@ def test_run_writes_every_file_of_the_work_directory(pipeline_run, procedure):
     failure_files = {W.GEOMETRIC_ERROR, W.ERROR}  # written only when something fails
     names = [value for key, value in vars(W).items() if key.isupper() and isinstance(value, str)
              and value not in failure_files]
-    assert len(names) == 19
+    assert len(names) == 20
     missing = [name for name in names if not (out / name).exists()]
     assert not missing
     assert not any((out / name).exists() for name in failure_files)
@@ -148,6 +148,9 @@ def test_run_writes_every_file_of_the_work_directory(pipeline_run, procedure):
     depth = np.load(out / W.DEPTH, mmap_mode="r")
     assert n == 200 and frames.shape[0] == n and frames.dtype == np.uint8
     assert depth.shape == frames.shape[:3] and np.isfinite(depth).all()
+    kept = json.loads((out / W.ODOMETRY).read_text())["pairs_kept_unrefined"]
+    assert {int(g) for g in kept} == set(RunConfig().posegraph.skips)
+    assert all(count == 0 for count in kept.values())  # textured frames: every pair aligned
     assert np.load(out / W.POSES).shape == (n, 4, 4)
     ingested = Ingested.load(out / W.INGEST)
     assert (ingested.frames, ingested.fps, ingested.decode_warning) == (n, FPS, None)

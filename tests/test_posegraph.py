@@ -20,7 +20,7 @@ from learned.metrics import trajectory_errors
 from learned.model import DepthModel, to_tensor
 
 SKIPS = (1, 2, 4, 8)
-NOISE = PoseGraphConfig(rotation_sigma=0.01, translation_sigma=0.1, gap_exponent=0.0,
+NOISE = PoseGraphConfig(skips=SKIPS, rotation_sigma=0.01, translation_sigma=0.1, gap_exponent=0.0,
                         velocity_weight=0.0)
 """Sigmas equal to the noise that `measured` adds, the same for every gap."""
 
@@ -128,14 +128,14 @@ def test_bad_relative_poses_are_named(edit, message):
     relative = measured(helix())
     edit(relative)
     with pytest.raises(InputError, match=message):
-        smooth_trajectory(relative, PoseGraphConfig(), name="relative")
+        smooth_trajectory(relative, PoseGraphConfig(skips=SKIPS), name="relative")
 
 
 def test_bad_configs_are_refused():
     with pytest.raises(InputError, match="including 1"):
         PoseGraphConfig(skips=(2, 4))
     with pytest.raises(InputError, match="twice the largest skip"):
-        PoseGraphConfig(window=16)
+        PoseGraphConfig(skips=SKIPS, window=16)
 
 
 def test_a_result_that_is_not_finite_or_got_worse_is_not_converged():

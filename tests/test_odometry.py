@@ -1,0 +1,81 @@
+"""fusion.odometry: relative poses given with a wrong rotation are pulled back to the truth by
+RGB-D odometry on a simulated procedure's frames, true depth and K; bad input."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from fusion.odometry import OdometryConfig, refine_relative_poses
+from hybrid.dataset import Procedure
+from hybrid.types import InputError
+
+
+def rotation_error_deg(estimated: np.ndarray, truth: np.ndarray) -> np.ndarray:
+    wrong = np.linalg.inv(estimated[:, :3, :3]) @ truth[:, :3, :3]
+    return np.degrees(np.linalg.norm(Rotation.from_matrix(wrong).as_rotvec(), axis=1))
+
+
+@pytest.fixture(scope="module")
+def procedure(simulated):
+    proc = Procedure.open(simulated)
+    frames = range(proc.num_frames)
+    return ([proc.depth(i) for i in frames], [proc.rgb(i) for i in frames], proc.camera.K,
+            proc.poses)
+
+
+def truth_at(poses: np.ndarray, gap: int) -> np.ndarray:
+    """Entry t maps camera t's points into camera t + gap."""
+    return np.linalg.inv(poses[gap:]) @ poses[:-gap]
+
+
+def test_odometry_recovers_the_rotation_from_a_wrong_start(procedure):
+    depth, rgb, K, poses = procedure
+    rng = np.random.default_rng(0)
+    truth = {g: truth_at(poses, g) for g in (1, 2)}
+    start = {}
+    for g, rel in truth.items():  # 1.5° about a random axis on every pair
+        axes = rng.normal(size=(len(rel), 3))
+        axes *= np.radians(1.5) / np.linalg.norm(axes, axis=1, keepdims=True)
+        start[g] = rel.copy()
+        start[g][:, :3, :3] = Rotation.from_rotvec(axes).as_matrix() @ rel[:, :3, :3]
+    refined = refine_relative_poses(start, depth, rgb, K)
+    for g in truth:
+        before = rotation_error_deg(start[g], truth[g]).mean()
+        after = rotation_error_deg(refined.relative[g], truth[g]).mean()
+        assert before == pytest.approx(1.5)
+        assert after < 0.3, (g, after)
+        assert refined.kept[g] == 0
+        moved = np.linalg.norm(refined.relative[g][:, :3, 3] - truth[g][:, :3, 3], axis=1)
+        step = np.linalg.norm(truth[g][:, :3, 3], axis=1)
+        assert np.median(moved / step) < 0.5
+
+
+def test_odometry_keeps_the_estimate_of_a_pair_it_cannot_align(procedure):
+    depth, rgb, K, poses = procedure
+    blank = [np.zeros_like(d) for d in depth]
+    blank[0] = depth[0]  # one valid frame: the thresholds have a unit, no pair has depth
+    start = {1: truth_at(poses, 1)}
+    refined = refine_relative_poses(start, blank, rgb, K)
+    assert refined.kept[1] == len(start[1])
+    np.testing.assert_array_equal(refined.relative[1], start[1])
+
+
+def test_bad_input_is_refused(procedure):
+    depth, rgb, K, poses = procedure
+    rel = {1: truth_at(poses, 1)}
+    with pytest.raises(InputError, match="depth maps but"):
+        refine_relative_poses(rel, depth, rgb[:-1], K)
+    nan = rel[1].copy()
+    nan[3, 0, 3] = np.nan
+    with pytest.raises(InputError, match="finite"):
+        refine_relative_poses({1: nan}, depth, rgb, K)
+    with pytest.raises(InputError, match="no valid"):
+        refine_relative_poses(rel, [np.zeros_like(d) for d in depth], rgb, K)
+    with pytest.raises(InputError, match="no relative poses"):
+        refine_relative_poses({}, depth, rgb, K)
+    with pytest.raises(InputError, match="positive"):
+        OdometryConfig(depth_huber=0.0)
+    with pytest.raises(InputError, match="per pyramid level"):
+        OdometryConfig(iterations=())
