@@ -85,88 +85,104 @@ def depth_ratio(learned: list[np.ndarray], true: list[np.ndarray], stride: int =
     return float(np.median(np.concatenate(ratios)))
 
 
+def learned_inputs(proc: Procedure, model, graph: PoseGraphConfig,
+                   odometry: OdometryConfig) -> dict:
+    """The depth model's depth and K, the smoothed poses (odometry first, unless off), and the
+    seconds of the networks and of the odometry + pose graph."""
+    tic = time.time()
+    seq = open_sequence(proc.path, (model.config.height, model.config.width))
+    inferred = infer_sequence(model, seq, tuple(sorted({1, *graph.skips})))
+    out = {"depth": list(inferred.depth), "K": np.median(inferred.K_pairs, axis=0),
+           "network_s": time.time() - tic}
+    tic = time.time()
+    relative = inferred.relative
+    if odometry.enabled:
+        refined = refine_relative_poses(relative, out["depth"],
+                                        [seq.frame(i) for i in range(seq.num_frames)],
+                                        out["K"], seq.region, odometry, name=str(proc.path))
+        relative, out["odometry_kept"] = refined.relative, refined.kept
+    out["poses"] = smooth_trajectory(relative, graph, name=str(proc.path)).poses
+    out["graph_s"] = time.time() - tic
+    return out
+
+
+def local_row(mode: str, proc: Procedure, learned: dict, depth_true: list[np.ndarray],
+              config: ReconstructionConfig, geometric: GeometricConfig) -> dict:
+    """Each segment on its own window (hybrid.segment_geometry): learned-local, or one of the
+    LOCAL_SWAPS diagnostics with the metric scale from the truth."""
+    if mode == "learned-local":
+        depth, K, poses, scale = learned["depth"], learned["K"], learned["poses"], None
+    else:
+        swap = LOCAL_SWAPS[mode]
+        to_cm = depth_ratio(learned["depth"], depth_true)
+        depth = learned["depth"] if "depth" in swap else depth_true
+        K = learned["K"] if "K" in swap else proc.camera.K
+        poses = learned["poses"] if "poses" in swap else proc.poses
+        if "poses" in swap and "depth" not in swap:  # translations to the true depth's cm
+            poses = poses.copy()
+            poses[:, :3, 3] *= to_cm
+        scale = to_cm if "depth" in swap else 1.0
+    segment_frames = proc.coverage.segment_frames
+    local = local_segment_coverage(depth, K, poses, segment_frames, segment_frames // 2, None,
+                                   config, geometric, proc.camera.fps, proc.path.name,
+                                   scale=scale)
+    key = pair_key(DEFAULT_PAIR_CM)
+    return {"pred": [np.nan if s.segment.coverage[key] is None else s.segment.coverage[key]
+                     for s in local],
+            "network_seconds": 0.0, "centreline_cm": np.nan, "radius_error_cm": np.nan}
+
+
+def whole_video_row(mode: str, proc: Procedure, learned: dict, depth_true: list[np.ndarray],
+                    config: ReconstructionConfig, geometric: GeometricConfig) -> dict:
+    """One reconstruction and lumen for the whole video: the oracle modes, or learned."""
+    if mode == "learned":
+        depth, K, poses = learned["depth"], learned["K"], learned["poses"]
+        network_s, scale = learned["network_s"], None
+    else:
+        depth, K, poses, network_s = depth_true, proc.camera.K, proc.poses, 0.0
+        scale = {"oracle": 1.0, "oracle-s0.7": 0.7, "oracle-s1.3": 1.3,
+                 "oracle-rule": None}[mode]
+    rgb = [proc.rgb(i) for i in range(proc.num_frames)]
+    rec = reconstruct(depth, K, poses, rgb, config=config, scale=scale, fps=proc.camera.fps,
+                      name=proc.path.name)
+    result = geometric_coverage(rec.lumen, rec.poses, ScaledDepth(depth, rec.scale), K,
+                                config=geometric)
+    row = {"pred": result.labels().tolist(), "scale": rec.scale, "network_seconds": network_s}
+    if mode == "learned":  # compare the lumen in the true frame after Sim(3) alignment
+        s, R, t = umeyama_sim3(rec.poses[:, :3, 3], proc.poses[:, :3, 3])
+        row.update(lumen_errors(s * rec.lumen.points @ R.T + t, s * rec.lumen.radius, proc,
+                                proc.poses))
+    else:
+        back = 1.0 / rec.scale  # to the simulator's cm
+        row.update(lumen_errors(rec.lumen.points * back, rec.lumen.radius * back, proc,
+                                proc.poses))
+    return row
+
+
 def run_procedure(proc: Procedure, model, graph: PoseGraphConfig, odometry: OdometryConfig,
                   config: ReconstructionConfig, geometric: GeometricConfig,
                   modes: tuple[str, ...] = MODES) -> dict:
     truth = proc.coverage.segment_labels()
     depth_true = [proc.depth(i) for i in range(proc.num_frames)]
-    rgb = [proc.rgb(i) for i in range(proc.num_frames)]
     out = {"truth": truth.tolist()}
-    learned: dict = {}
+    learned = {}
+    if any(m.startswith("learned") or m in LOCAL_SWAPS for m in modes):
+        learned = learned_inputs(proc, model, graph, odometry)
+        if "odometry_kept" in learned:  # pairs the odometry could not align, per gap
+            out["odometry_kept"] = learned["odometry_kept"]
     for mode in modes:
         tic = time.time()
-        if (mode.startswith("learned") or mode in LOCAL_SWAPS) and not learned:
-            seq = open_sequence(proc.path, (model.config.height, model.config.width))
-            inferred = infer_sequence(model, seq, tuple(sorted({1, *graph.skips})))
-            learned.update(depth=list(inferred.depth), K=np.median(inferred.K_pairs, axis=0),
-                           network_s=time.time() - tic)
-            graph_tic = time.time()
-            relative = inferred.relative
-            if odometry.enabled:
-                frames = [seq.frame(i) for i in range(seq.num_frames)]  # the network's size
-                refined = refine_relative_poses(relative, learned["depth"], frames,
-                                                learned["K"], config=odometry,
-                                                name=str(proc.path))
-                relative, learned["odometry_kept"] = refined.relative, refined.kept
-            learned["poses"] = smooth_trajectory(relative, graph, name=str(proc.path)).poses
-            learned["graph_s"] = time.time() - graph_tic
-            learned["to_cm"] = depth_ratio(learned["depth"], depth_true)
-        if mode in ("learned", "learned-local", "local-metric"):  # pose graph timed, networks not
-            tic = time.time() - learned["graph_s"]
-        if mode == "learned-local" or mode in LOCAL_SWAPS:
-            frames = proc.coverage.segment_frames
-            if mode == "learned-local":
-                depth, K, poses, scale = (learned["depth"], learned["K"], learned["poses"],
-                                          None)
-            else:
-                swap = LOCAL_SWAPS[mode]
-                depth = learned["depth"] if "depth" in swap else depth_true
-                K = learned["K"] if "K" in swap else proc.camera.K
-                poses = learned["poses"] if "poses" in swap else proc.poses
-                if "poses" in swap and "depth" not in swap:  # translations to the true depth's cm
-                    poses = poses.copy()
-                    poses[:, :3, 3] *= learned["to_cm"]
-                scale = learned["to_cm"] if "depth" in swap else 1.0
-            local = local_segment_coverage(depth, K, poses, frames, frames // 2, None, config,
-                                           geometric, proc.camera.fps, proc.path.name,
-                                           scale=scale)
-            key = pair_key(DEFAULT_PAIR_CM)
-            pred = [np.nan if s.segment.coverage[key] is None else s.segment.coverage[key]
-                    for s in local]
-            out[mode] = {"pred": pred, "seconds": time.time() - tic, "network_seconds": 0.0,
-                         "frames": proc.num_frames, "centreline_cm": np.nan,
-                         "radius_error_cm": np.nan}
-            print(f"{proc.path}: {mode:12s} truth {np.round(truth, 2).tolist()}  pred "
-                  f"{np.round(pred, 2).tolist()}", flush=True)
-            continue
-        if mode == "learned":
-            depth, K, poses = learned["depth"], learned["K"], learned["poses"]
-            network_s, scale = learned["network_s"], None
-        else:
-            depth, K, poses, network_s = depth_true, proc.camera.K, proc.poses, 0.0
-            scale = {"oracle": 1.0, "oracle-s0.7": 0.7, "oracle-s1.3": 1.3,
-                     "oracle-rule": None}[mode]
-        rec = reconstruct(depth, K, poses, rgb, config=config, scale=scale, fps=proc.camera.fps,
-                          name=proc.path.name)
-        result = geometric_coverage(rec.lumen, rec.poses, ScaledDepth(depth, rec.scale), K,
-                                    config=geometric)
-        seconds = time.time() - tic
-        row = {"pred": result.labels().tolist(), "scale": rec.scale, "seconds": seconds,
-               "network_seconds": network_s, "frames": proc.num_frames}
-        if mode == "learned":  # compare the lumen in the true frame after Sim(3) alignment
-            s, R, t = umeyama_sim3(rec.poses[:, :3, 3], proc.poses[:, :3, 3])
-            row.update(lumen_errors(s * rec.lumen.points @ R.T + t, s * rec.lumen.radius, proc,
-                                    proc.poses))
-        else:
-            back = 1.0 / rec.scale  # to the simulator's cm
-            row.update(lumen_errors(rec.lumen.points * back, rec.lumen.radius * back, proc,
-                                    proc.poses))
+        local = mode == "learned-local" or mode in LOCAL_SWAPS
+        row = (local_row if local else whole_video_row)(mode, proc, learned, depth_true, config,
+                                                        geometric)
+        # seconds: the geometry, with the odometry + pose graph where all poses are learned
+        graph_s = learned["graph_s"] if mode in ("learned", "learned-local", "local-metric") \
+            else 0.0
+        row.update(seconds=time.time() - tic + graph_s, frames=proc.num_frames)
         out[mode] = row
-        print(f"{proc.path}: {mode:12s} scale {rec.scale:6.3f}  truth "
-              f"{np.round(truth, 2).tolist()}  pred {np.round(row['pred'], 2).tolist()}  "
-              f"{seconds:5.1f} s", flush=True)
-    if "odometry_kept" in learned:  # pairs the odometry could not align, per gap
-        out["odometry_kept"] = learned["odometry_kept"]
+        scale = f"scale {row['scale']:6.3f}  " if "scale" in row else ""
+        print(f"{proc.path}: {mode:12s} {scale}truth {np.round(truth, 2).tolist()}  pred "
+              f"{np.round(row['pred'], 2).tolist()}  {row['seconds']:5.1f} s", flush=True)
     return out
 
 

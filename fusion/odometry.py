@@ -6,9 +6,10 @@ colour and by the network's depth and K, starting from the network's estimate; o
 procedures it finds nearly all of the rotation (docs/posegraph.md). Every pair (t, t+g) of
 every gap is refined, so the pose graph gets refined measurements at all its gaps. A pair the
 odometry cannot align (too few valid correspondences) keeps the network's estimate; how many
-did is returned, not hidden. Open3D runs on one thread here: its parallel reductions differ in
-the last digits from run to run, and the lumen fit downstream can turn that into a different
-coverage (a jump of 0.08 on one 110-frame clip), so results would not repeat.
+did is returned, not hidden; its fit is not judged further (a poor alignment is kept). Open3D
+runs on one thread here: its parallel reductions differ in the last digits from run to run,
+and the lumen fit downstream turned that into a different coverage (a jump of 0.08 on one
+110-frame clip); on one thread the refined poses repeat exactly.
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import open3d as o3d
+from scipy.ndimage import distance_transform_edt
 from tqdm import tqdm
 
 from hybrid.types import InputError
@@ -38,11 +40,12 @@ class OdometryConfig:
     70% of the time."""
     depth_outlier: float = 0.21
     """Correspondences whose depths differ by more than this are outliers (Open3D's default
-    0.07 m for a median depth near 0.33 m)."""
+    0.07 m, for a median depth of about 0.33 m; not tuned)."""
     depth_huber: float = 0.05
-    """Huber threshold of the geometric (point-to-plane) residual."""
+    """Huber threshold of the geometric (point-to-plane) residual (Open3D's default 0.05 m read
+    as a fraction; not tuned)."""
     intensity_huber: float = 0.1
-    """Huber threshold of the intensity residual (intensity in [0, 1])."""
+    """Huber threshold of the intensity residual (intensity in [0, 1]; Open3D's default)."""
 
     def __post_init__(self) -> None:
         if min(self.depth_outlier, self.depth_huber, self.intensity_huber) <= 0:
@@ -78,32 +81,44 @@ def refine_relative_poses(relative: dict[int, np.ndarray], depth: Sequence[np.nd
     if len(rgb) != n:
         raise InputError(f"{name}: {n} depth maps but {len(rgb)} frames")
     for g, rel in relative.items():
+        if not isinstance(g, int) or g < 1:
+            raise InputError(f"{name}: frame gaps must be positive integers, got {g!r}")
         if rel.shape != (max(n - g, 0), 4, 4) or not np.isfinite(rel).all():
             raise InputError(f"{name}: gap-{g} relative poses must be a finite "
                              f"({max(n - g, 0)}, 4, 4) array, got shape {rel.shape}")
+    K = np.asarray(K, np.float64)
+    if K.shape != (3, 3) or not np.isfinite(K).all():
+        raise InputError(f"{name}: K must be a finite 3x3 matrix, got shape {K.shape}")
+    size = np.shape(depth[0]) if n else ()
+    if region is not None and (np.shape(region) != size or np.asarray(region).dtype != bool):
+        raise InputError(f"{name}: the region must be a boolean {size} mask like the depth, got "
+                         f"{np.asarray(region).dtype} {np.shape(region)}")
     scale = _median_depth(depth, region, name)
     params = _odometry.OdometryLossParams(config.depth_outlier * scale, config.depth_huber * scale,
                                           config.intensity_huber)
-    intrinsics = o3d.core.Tensor(np.asarray(K, np.float64))
+    intrinsics = o3d.core.Tensor(K)
     criteria = [_odometry.OdometryConvergenceCriteria(i) for i in config.iterations]
     refined = {g: rel.copy() for g, rel in relative.items()}
     kept = dict.fromkeys(relative, 0)
-    window: dict[int, o3d.t.geometry.RGBDImage] = {}
+    nearest = None if region is None else _nearest_in(region)
+    window: dict[int, tuple[o3d.t.geometry.RGBDImage, o3d.t.geometry.RGBDImage]] = {}
     back = max(relative)
     with _one_thread():
         for t in tqdm(range(n), desc=f"odometry {name}", unit="frame", disable=not progress):
-            window[t] = _rgbd(rgb[t], depth[t], region)
+            window[t] = _images(rgb[t], depth[t], region, nearest, f"{name} frame {t}")
             window.pop(t - back - 1, None)
             for g, rel in relative.items():
                 if t - g < 0:
                     continue
                 try:
                     result = _odometry.rgbd_odometry_multi_scale(
-                        window[t - g], window[t], intrinsics, o3d.core.Tensor(rel[t - g]),
+                        window[t - g][0], window[t][1], intrinsics, o3d.core.Tensor(rel[t - g]),
                         depth_scale=1.0, depth_max=float("inf"), criteria_list=criteria,
                         method=_odometry.Method.Hybrid, params=params)
                     pose = result.transformation.numpy()
-                except RuntimeError:  # Open3D: too few correspondences to solve
+                except RuntimeError as err:  # Open3D's two ways of saying "cannot solve"
+                    if not any(m in str(err) for m in ("inlier_count", "tracking failed")):
+                        raise
                     pose = None
                 if pose is None or not np.isfinite(pose).all():
                     kept[g] += 1
@@ -122,25 +137,46 @@ def _one_thread() -> Iterator[None]:
         o3d.utility.set_max_threads(previous)
 
 
-def _rgbd(rgb: np.ndarray, depth: np.ndarray, region: np.ndarray | None
-          ) -> o3d.t.geometry.RGBDImage:
+def _nearest_in(region: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """For every pixel, the (row, column) of the nearest pixel of the region."""
+    return tuple(distance_transform_edt(~region, return_distances=False, return_indices=True))
+
+
+def _images(rgb: np.ndarray, depth: np.ndarray, region: np.ndarray | None,
+            nearest: tuple[np.ndarray, np.ndarray] | None, name: str
+            ) -> tuple[o3d.t.geometry.RGBDImage, o3d.t.geometry.RGBDImage]:
+    """The frame as the source of a pair and as its target. Outside the region, colour (and the
+    target's depth) are copied from the nearest pixel inside, so that nothing outside is read,
+    even through the pyramid's blur, and the region's edge makes no gradient that would hold
+    the alignment in place; the source's depth there is 0, so it has no points there."""
     d = np.asarray(depth, np.float32)
-    if region is not None:
-        d = np.where(region, d, np.float32(0))
-    colour = np.ascontiguousarray(np.asarray(rgb, np.float32) / 255.0)
-    return o3d.t.geometry.RGBDImage(o3d.t.geometry.Image(colour),
-                                    o3d.t.geometry.Image(np.ascontiguousarray(d[..., None])))
+    if np.shape(rgb) != (*d.shape, 3) or np.asarray(rgb).dtype != np.uint8:
+        raise InputError(f"{name}: expected a uint8 {d.shape + (3,)} RGB frame like its depth "
+                         f"map, got {np.asarray(rgb).dtype} {np.shape(rgb)}")
+    colour = np.asarray(rgb, np.float32) / 255.0
+    if region is None:
+        both = _rgbd(colour, d)
+        return both, both
+    colour = colour[nearest]
+    return _rgbd(colour, np.where(region, d, np.float32(0))), _rgbd(colour, d[nearest])
+
+
+def _rgbd(colour: np.ndarray, depth: np.ndarray) -> o3d.t.geometry.RGBDImage:
+    return o3d.t.geometry.RGBDImage(o3d.t.geometry.Image(np.ascontiguousarray(colour)),
+                                    o3d.t.geometry.Image(np.ascontiguousarray(depth[..., None])))
 
 
 def _median_depth(depth: Sequence[np.ndarray], region: np.ndarray | None, name: str) -> float:
-    """Median of the valid depth of every 10th frame: the unit of the odometry's thresholds."""
-    values = []
-    for f in range(0, len(depth), 10):
-        d = np.asarray(depth[f], np.float32)
-        if region is not None:
-            d = d[region]
-        values.append(d[np.isfinite(d) & (d > 0)])
-    values = np.concatenate(values) if values else np.empty(0)
-    if not values.size:
-        raise InputError(f"{name}: the depth maps hold no valid (positive) depth")
-    return float(np.median(values))
+    """Median of the valid depth of every 10th frame (of every frame if those hold none): the
+    unit of the odometry's thresholds."""
+    for stride in (10, 1):
+        values = []
+        for f in range(0, len(depth), stride):
+            d = np.asarray(depth[f], np.float32)
+            if region is not None:
+                d = d[region]
+            values.append(d[np.isfinite(d) & (d > 0)])
+        values = np.concatenate(values) if values else np.empty(0)
+        if values.size:
+            return float(np.median(values))
+    raise InputError(f"{name}: the depth maps hold no valid (positive) depth")

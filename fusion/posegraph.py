@@ -33,8 +33,8 @@ class PoseGraphConfig:
     skips: tuple[int, ...] = (1, 2)
     """Frame gaps g whose relative poses (t -> t+g) become factors; must contain 1. With the
     relative poses refined by RGB-D odometry (fusion.odometry), (1, 2) gives the coverage
-    error of (1, 2, 4, 8) at twice the speed; the network's own poses did better with
-    (1, 2, 4, 8) (docs/posegraph.md)."""
+    error of (1, 2, 4, 8) for half the odometry's time; the network's own poses did better
+    with (1, 2, 4, 8) (docs/posegraph.md)."""
     rotation_sigma: float = 0.02
     """Standard deviation of a gap-1 relative rotation, radians per axis."""
     translation_sigma: float = 2.0

@@ -182,9 +182,6 @@ class _Run:
                                             name=str(self.source), progress=self.progress)
             relative = refined.relative
             W.write_json(self.path(W.ODOMETRY), {"pairs_kept_unrefined": refined.kept})
-            if any(refined.kept.values()):
-                log.warning("%s: RGB-D odometry could not align %s pairs (per gap); they keep "
-                            "the network's relative pose", self.source, refined.kept)
         result = smooth_trajectory(relative, self.config.posegraph, name=str(self.source))
         for name, poses in ((W.POSES_RAW, result.chained), (W.POSES, result.poses)):
             np.save(self.path(name + ".partial.npy"), poses)
@@ -335,6 +332,11 @@ def run_video(source: Path, out: Path, config: RunConfig = RunConfig(),
         warnings.append(run.ingested.decode_warning)
     if geometric_error.is_file():
         warnings.append(f"geometric branch failed at {geometric_error.read_text().strip()}")
+    if (out / W.ODOMETRY).is_file():
+        kept = json.loads((out / W.ODOMETRY).read_text())["pairs_kept_unrefined"]
+        if any(kept.values()):
+            warnings.append(f"RGB-D odometry could not align {sum(kept.values())} frame pairs "
+                            f"(per gap: {kept}); they keep the network's relative pose")
     dropped = run.ingested.frames % run.segment_frames
     if dropped:
         echo(f"note: the last {dropped} frames ({dropped / run.ingested.fps:.1f} s) do not fill "
