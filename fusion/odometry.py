@@ -5,9 +5,9 @@ The motion network finds about half of the true pitch and yaw between frames
 colour and by the network's depth and K, starting from the network's estimate; on simulated
 procedures it finds nearly all of the rotation (docs/posegraph.md). Every pair (t, t+g) of
 every gap is refined, so the pose graph gets refined measurements at all its gaps. A pair the
-odometry cannot align (too few valid correspondences) keeps the network's estimate; how many
-did is returned, not hidden; its fit is not judged further (a poor alignment is kept). Open3D
-runs on one thread here: its parallel reductions differ in the last digits from run to run,
+odometry cannot align (too few valid correspondences) keeps the network's estimate, and how
+many did is returned. The fit itself is not judged: a poor alignment is kept. Open3D runs on
+one thread here: its parallel reductions differ in the last digits from run to run,
 and the lumen fit downstream turned that into a different coverage (a jump of 0.08 on one
 110-frame clip); on one thread the refined poses repeat exactly.
 """
