@@ -238,6 +238,10 @@ def main() -> None:
     parser.add_argument("--skips", type=int, nargs="+", default=list(PoseGraphConfig().skips),
                         help="PoseGraphConfig.skips: the frame gaps whose relative poses "
                              "become pose-graph factors")
+    for field in ("rotation_sigma", "translation_sigma"):
+        parser.add_argument("--" + field.replace("_", "-"), type=float,
+                            default=getattr(PoseGraphConfig(), field),
+                            help="see PoseGraphConfig")
     parser.add_argument("--no-odometry", action="store_true",
                         help="give the pose graph the network's relative poses unrefined")
     args = parser.parse_args()
@@ -247,7 +251,9 @@ def main() -> None:
     from learned.checkpoints import SHIPPED_DEPTH
 
     model = load_depth_model(args.checkpoint or SHIPPED_DEPTH)
-    graph, config = PoseGraphConfig(skips=tuple(args.skips)), ReconstructionConfig()
+    graph = PoseGraphConfig(skips=tuple(args.skips), rotation_sigma=args.rotation_sigma,
+                            translation_sigma=args.translation_sigma)
+    config = ReconstructionConfig()
     odometry = OdometryConfig(enabled=not args.no_odometry)
     results = {f"{p.parent.name}/{p.name}": run_procedure(Procedure.open(p), model, graph,
                                                            odometry, config, geometric, modes)
