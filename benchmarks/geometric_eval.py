@@ -78,6 +78,10 @@ def lumen_errors(fitted_points: np.ndarray, fitted_radius: np.ndarray, proc: Pro
 def depth_ratio(learned: list[np.ndarray], true: list[np.ndarray], stride: int = 10) -> float:
     """The median ratio of true to learned depth over the pixels of every stride-th frame: the
     factor that makes the learned depth (and translations, in the same unit) centimetres."""
+    if learned[0].shape != true[0].shape:
+        raise SystemExit(f"the local-* modes mix learned and true inputs, which needs the "
+                         f"simulator's frames at the network's size: {true[0].shape} against "
+                         f"{learned[0].shape}")
     ratios = []
     for pred, gt in zip(learned[::stride], true[::stride], strict=True):
         ok = (pred > 0) & (gt > 0)
@@ -113,8 +117,7 @@ def local_row(mode: str, proc: Procedure, learned: dict, depth_true: list[np.nda
     if mode == "learned-local":
         depth, K, poses, scale = learned["depth"], learned["K"], learned["poses"], None
     else:
-        swap = LOCAL_SWAPS[mode]
-        to_cm = depth_ratio(learned["depth"], depth_true)
+        swap, to_cm = LOCAL_SWAPS[mode], learned["to_cm"]
         depth = learned["depth"] if "depth" in swap else depth_true
         K = learned["K"] if "K" in swap else proc.camera.K
         poses = learned["poses"] if "poses" in swap else proc.poses
@@ -170,6 +173,8 @@ def run_procedure(proc: Procedure, model, graph: PoseGraphConfig, odometry: Odom
         learned = learned_inputs(proc, model, graph, odometry)
         if "odometry_kept" in learned:  # pairs the odometry could not align, per gap
             out["odometry_kept"] = learned["odometry_kept"]
+        if any(m in LOCAL_SWAPS for m in modes):
+            learned["to_cm"] = depth_ratio(learned["depth"], depth_true)
     for mode in modes:
         tic = time.time()
         local = mode == "learned-local" or mode in LOCAL_SWAPS
@@ -244,6 +249,9 @@ def main() -> None:
                             help="see PoseGraphConfig")
     parser.add_argument("--no-odometry", action="store_true",
                         help="give the pose graph the network's relative poses unrefined")
+    parser.add_argument("--odometry-iterations", type=int, nargs="+",
+                        default=list(OdometryConfig().iterations),
+                        help="OdometryConfig.iterations: per pyramid level, coarsest first")
     args = parser.parse_args()
     modes = tuple(args.modes)
     geometric = GeometricConfig(occlusion_tolerance=args.occlusion_tolerance)
@@ -254,7 +262,8 @@ def main() -> None:
     graph = PoseGraphConfig(skips=tuple(args.skips), rotation_sigma=args.rotation_sigma,
                             translation_sigma=args.translation_sigma)
     config = ReconstructionConfig()
-    odometry = OdometryConfig(enabled=not args.no_odometry)
+    odometry = OdometryConfig(enabled=not args.no_odometry,
+                              iterations=tuple(args.odometry_iterations))
     results = {f"{p.parent.name}/{p.name}": run_procedure(Procedure.open(p), model, graph,
                                                            odometry, config, geometric, modes)
                for p in expand_inputs(args.data)}

@@ -36,8 +36,8 @@ class OdometryConfig:
     enabled: bool = True
     iterations: tuple[int, ...] = (5, 3, 2)
     """Gauss-Newton iterations per pyramid level, coarsest first (one level per entry; Open3D's
-    default is (10, 5, 3)): on two tuning procedures the same rotation error within 0.01°, in
-    70% of the time."""
+    default is (10, 5, 3)): on two tuning procedures the same rotation error within 0.015°, in
+    68% of the time (benchmarks/odometry_rotation.py, docs/posegraph.md)."""
     depth_outlier: float = 0.21
     """Correspondences whose depths differ by more than this are outliers (Open3D's default
     0.07 m, for a median depth of about 0.33 m; not tuned)."""
@@ -93,6 +93,8 @@ def refine_relative_poses(relative: dict[int, np.ndarray], depth: Sequence[np.nd
     if region is not None and (np.shape(region) != size or np.asarray(region).dtype != bool):
         raise InputError(f"{name}: the region must be a boolean {size} mask like the depth, got "
                          f"{np.asarray(region).dtype} {np.shape(region)}")
+    if region is not None and region.all():  # nothing outside: no masking, no copying
+        region = None
     scale = _median_depth(depth, region, name)
     params = _odometry.OdometryLossParams(config.depth_outlier * scale, config.depth_huber * scale,
                                           config.intensity_huber)
@@ -103,24 +105,26 @@ def refine_relative_poses(relative: dict[int, np.ndarray], depth: Sequence[np.nd
     nearest = None if region is None else _nearest_in(region)
     window: dict[int, tuple[o3d.t.geometry.RGBDImage, o3d.t.geometry.RGBDImage]] = {}
     back = max(relative)
+    def align(source: o3d.t.geometry.RGBDImage, target: o3d.t.geometry.RGBDImage,
+              start: np.ndarray) -> np.ndarray | None:
+        try:
+            pose = _odometry.rgbd_odometry_multi_scale(
+                source, target, intrinsics, o3d.core.Tensor(start), depth_scale=1.0,
+                depth_max=float("inf"), criteria_list=criteria, method=_odometry.Method.Hybrid,
+                params=params).transformation.numpy()
+        except RuntimeError as err:  # Open3D's two ways of saying "cannot solve"
+            if not any(m in str(err) for m in ("inlier_count", "tracking failed")):
+                raise
+            return None
+        return pose if np.isfinite(pose).all() else None
+
     with _one_thread():
         for t in tqdm(range(n), desc=f"odometry {name}", unit="frame", disable=not progress):
             window[t] = _images(rgb[t], depth[t], region, nearest, f"{name} frame {t}")
             window.pop(t - back - 1, None)
-            for g, rel in relative.items():
-                if t - g < 0:
-                    continue
-                try:
-                    result = _odometry.rgbd_odometry_multi_scale(
-                        window[t - g][0], window[t][1], intrinsics, o3d.core.Tensor(rel[t - g]),
-                        depth_scale=1.0, depth_max=float("inf"), criteria_list=criteria,
-                        method=_odometry.Method.Hybrid, params=params)
-                    pose = result.transformation.numpy()
-                except RuntimeError as err:  # Open3D's two ways of saying "cannot solve"
-                    if not any(m in str(err) for m in ("inlier_count", "tracking failed")):
-                        raise
-                    pose = None
-                if pose is None or not np.isfinite(pose).all():
+            for g in (g for g in relative if g <= t):
+                pose = align(window[t - g][0], window[t][1], relative[g][t - g])
+                if pose is None:
                     kept[g] += 1
                 else:
                     refined[g][t - g] = pose
