@@ -10,14 +10,17 @@ back-projected depth) in one unit, and returns a `FittedLumen` parametrised by a
    of the coverage definition points.
    The path is continued straight on beyond its deep end, to cover the look-ahead band, and a
    little beyond its other end; so is the fitted centreline where the surface ends.
-2. Cross-sections: at each station, the surface points in a slab one spacing thick normal to
+2. The surface is thinned to one point per small cube (`thinning`), so that each part of the
+   wall counts once however often and closely the video saw it.
+3. Cross-sections: at each station, the surface points in a slab one spacing thick normal to
    the path are projected into its plane and fitted with a circle (algebraic fit, outliers
    beyond 3 MADs trimmed); a section whose points cover less than half of the circle is
    skipped and filled in from its neighbours.
-3. The centres and radii are smoothed along the stations; the path is replaced by the fitted
-   centreline and steps 2-3 run again.
-Spacing, slab and reach scale with a first radius estimate (median distance from the surface to
-the camera path), so the fit works in any unit, e.g. before the metric scale is known.
+4. The centres and radii are smoothed along the stations; the path is replaced by the fitted
+   centreline and steps 3-4 run again.
+Cube, spacing, slab and reach scale with a first radius estimate (median distance from the
+surface to the camera path), so the fit works in any unit, e.g. before the metric scale is
+known.
 """
 
 from __future__ import annotations
@@ -27,6 +30,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+import open3d as o3d
 from scipy.ndimage import gaussian_filter1d
 from scipy.spatial import cKDTree
 
@@ -62,8 +66,14 @@ class LumenFitConfig:
     extend_back: float = 1.0
     """... and this far (× r0) beyond their other end, which smoothing would otherwise
     shorten."""
+    thinning: float = 0.1
+    """Before the fit, the surface keeps one point (the mean) per cube of this side, × r0
+    (0: every point). The wall then counts by its area, not by how many frames saw it or from
+    how close, and the fit's time no longer grows with how often the video passes a place."""
 
     def __post_init__(self) -> None:
+        if self.thinning < 0:
+            raise InputError(f"LumenFitConfig.thinning must be >= 0, got {self.thinning}")
         if self.iterations < 1 or self.spacing <= 0 or self.reach <= 0:
             raise InputError(f"LumenFitConfig needs iterations >= 1 and positive spacing and "
                              f"reach: {self}")
@@ -103,11 +113,14 @@ def fit_lumen(poses: np.ndarray, surface: np.ndarray, fps: float = 30.0,
                          f"reconstruction is empty, check the depth and poses")
     if not np.isfinite(surface).all():
         raise InputError(f"{name}: surface points contain NaN or infinite values")
+    surface = _sorted(surface)
     centres = gaussian_filter1d(poses[:, :3, 3], config.path_smoothing_s * fps, axis=0,
                                 mode="nearest")
     r0 = float(np.median(cKDTree(centres).query(surface[:: max(1, len(surface) // 20000)])[0]))
     if not r0 > 0:
         raise InputError(f"{name}: the surface lies on the camera path; no lumen to fit")
+    if config.thinning > 0:
+        surface = _thinned(surface, config.thinning * r0)
     spacing = config.spacing * r0
     path = _stations(centres, spacing)
     if config.withdrawal:
@@ -138,6 +151,20 @@ def metric_scale(lumen: FittedLumen, typical_radius_cm: float) -> float:
 
 def _length(points: np.ndarray) -> float:
     return float(np.linalg.norm(np.diff(points, axis=0), axis=1).sum())
+
+
+def _sorted(points: np.ndarray) -> np.ndarray:
+    """The points in a fixed (lexicographic) order, so that the fit depends on the points and
+    not on their order (Open3D's threaded meshing lists the same vertices in a different order
+    from run to run)."""
+    return points[np.lexsort(points.T[::-1])]
+
+
+def _thinned(points: np.ndarray, cell: float) -> np.ndarray:
+    """The mean of the points in each occupied cube of side `cell` (Open3D's voxel
+    down-sampling), in a fixed order."""
+    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
+    return _sorted(np.asarray(cloud.voxel_down_sample(cell).points))
 
 
 def _stations(centres: np.ndarray, spacing: float) -> np.ndarray:

@@ -10,7 +10,9 @@ only accumulates within a window.
 
 from __future__ import annotations
 
+import os
 from collections.abc import Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -50,19 +52,23 @@ def local_segment_coverage(depth: Sequence[np.ndarray], K: np.ndarray, poses: np
                            segment_frames: int, context: int, region: np.ndarray | None,
                            reconstruction: ReconstructionConfig, geometric: GeometricConfig,
                            fps: float = 30.0, name: str = "video",
-                           scale: float | None = None) -> list[LocalSegment]:
+                           scale: float | None = None, threads: int | None = None
+                           ) -> list[LocalSegment]:
     """Coverage of every full segment, each from a reconstruction of its own window.
 
     depth and poses in one (any) unit, made metric by `scale` (cm per unit) or, if None, by
     each window's scale rule; a segment whose window cannot be reconstructed (the camera
-    barely moves, no surface) gets coverage None and the reason.
+    barely moves, no surface) gets coverage None and the reason. Segments are computed in
+    `threads` threads at once (None: one per CPU core this process may use); the result does
+    not depend on it.
     """
     n = len(poses)
     if n < segment_frames:
         raise InputError(f"{name}: {n} frames is shorter than one segment ({segment_frames})")
     config = replace(geometric, segment_frames=segment_frames)
-    out = []
-    for index, start in enumerate(range(0, n - segment_frames + 1, segment_frames)):
+
+    def one(index: int) -> LocalSegment:
+        start = index * segment_frames
         stop = start + segment_frames
         first, last = max(0, start - context), min(n, stop + context)
         local = np.linalg.inv(poses[first]) @ poses[first:last]
@@ -74,13 +80,15 @@ def local_segment_coverage(depth: Sequence[np.ndarray], K: np.ndarray, poses: np
                 rec.lumen, rec.poses[start - first:stop - first],
                 ScaledDepth(_Window(depth, start, stop), rec.scale, region), K, region, config,
                 name=label)
-            segment = replace(result.segments[0], index=index, start=start, stop=stop)
-            out.append(LocalSegment(segment, result))
+            return LocalSegment(replace(result.segments[0], index=index, start=start, stop=stop),
+                                result)
         except InputError as err:
             empty = SegmentCoverage(index, start, stop, None, None,
                                     {pair_key(p): None for p in DELTA_PAIRS_CM})
-            out.append(LocalSegment(empty, None, str(err)))
-    return out
+            return LocalSegment(empty, None, str(err))
+
+    with ThreadPoolExecutor(threads or len(os.sched_getaffinity(0))) as pool:
+        return list(pool.map(one, range(n // segment_frames)))
 
 
 def save_maps(segments: list[LocalSegment], folder: Path, title: str) -> None:

@@ -43,6 +43,10 @@ def test_odometry_recovers_the_rotation_from_a_wrong_start(procedure):
         start[g] = rel.copy()
         start[g][:, :3, :3] = Rotation.from_rotvec(axes).as_matrix() @ rel[:, :3, :3]
     refined = refine_relative_poses(start, depth, rgb, K)
+    for count in (1, 3):  # pairs run on threads, each pair on one: the same result
+        again = refine_relative_poses(start, depth, rgb, K, config=OdometryConfig(threads=count))
+        for g in truth:
+            np.testing.assert_array_equal(again.relative[g], refined.relative[g])
     for g in truth:
         before = rotation_error_deg(start[g], truth[g]).mean()
         after = rotation_error_deg(refined.relative[g], truth[g]).mean()
@@ -110,3 +114,5 @@ def test_bad_input_is_refused(procedure):
         OdometryConfig(depth_huber=0.0)
     with pytest.raises(InputError, match="per pyramid level"):
         OdometryConfig(iterations=())
+    with pytest.raises(InputError, match="threads"):
+        OdometryConfig(threads=0)
