@@ -247,6 +247,9 @@ def main() -> None:
         parser.add_argument("--" + field.replace("_", "-"), type=float,
                             default=getattr(PoseGraphConfig(), field),
                             help="see PoseGraphConfig")
+    parser.add_argument("--voxel-cm", type=float, default=ReconstructionConfig().voxel_cm,
+                        help="ReconstructionConfig.voxel_cm: TSDF voxel size once the scale "
+                             "is fixed")
     parser.add_argument("--no-odometry", action="store_true",
                         help="give the pose graph the network's relative poses unrefined")
     parser.add_argument("--odometry-iterations", type=int, nargs="+",
@@ -261,7 +264,7 @@ def main() -> None:
     model = load_depth_model(args.checkpoint or SHIPPED_DEPTH)
     graph = PoseGraphConfig(skips=tuple(args.skips), rotation_sigma=args.rotation_sigma,
                             translation_sigma=args.translation_sigma)
-    config = ReconstructionConfig()
+    config = ReconstructionConfig(voxel_cm=args.voxel_cm)
     odometry = OdometryConfig(enabled=not args.no_odometry,
                               iterations=tuple(args.odometry_iterations))
     results = {f"{p.parent.name}/{p.name}": run_procedure(Procedure.open(p), model, graph,

@@ -85,7 +85,7 @@ def refine_relative_poses(relative: dict[int, np.ndarray], depth: Sequence[np.nd
 
     depth: (H, W) maps, 0 where unknown; rgb: (H, W, 3) uint8 frames of the same size; K at
     that size. Frames are read once, in order, a block at a time; the pairs of a block are
-    aligned in `config.threads` threads.
+    aligned in `config.threads` threads while the next block is read.
     """
     if not relative:
         raise InputError(f"{name}: no relative poses to refine")
@@ -134,22 +134,30 @@ def refine_relative_poses(relative: dict[int, np.ndarray], depth: Sequence[np.nd
         g, t = job  # frame t - g onto frame t
         return align(window[t - g][0], window[t][1], relative[g][t - g])
 
+    def collect(jobs: list[tuple[int, int]], poses: Iterator[np.ndarray | None]) -> None:
+        for (g, t), pose in zip(jobs, poses, strict=True):
+            if pose is None:
+                kept[g] += 1
+            else:
+                refined[g][t - g] = pose
+
     threads = config.threads or len(os.sched_getaffinity(0))
+    pending: tuple[list[tuple[int, int]], Iterator[np.ndarray | None]] | None = None
     with (_one_thread(), ThreadPoolExecutor(threads) as pool,
           tqdm(total=n, desc=f"odometry {name}", unit="frame", disable=not progress) as bar):
         for begin in range(0, n, _BLOCK):
             stop = min(n, begin + _BLOCK)
-            for t in range(begin, stop):
+            for t in range(begin, stop):  # read while the threads align the block before
                 window[t] = _images(rgb[t], depth[t], region, nearest, f"{name} frame {t}")
-            jobs = [(g, t) for t in range(begin, stop) for g in relative if g <= t]
-            for (g, t), pose in zip(jobs, pool.map(pair, jobs), strict=True):
-                if pose is None:
-                    kept[g] += 1
-                else:
-                    refined[g][t - g] = pose
-            for t in [t for t in window if t < stop - back]:  # no later pair reads them
-                del window[t]
             bar.update(stop - begin)
+            if pending:
+                collect(*pending)
+            for t in [t for t in window if t < begin - back]:  # no pair left reads them
+                del window[t]
+            jobs = [(g, t) for t in range(begin, stop) for g in relative if g <= t]
+            pending = (jobs, pool.map(pair, jobs))
+        if pending:
+            collect(*pending)
     return RefinedPoses(refined, kept)
 
 
