@@ -137,6 +137,10 @@ def fit_lumen(poses: np.ndarray, surface: np.ndarray, fps: float = 30.0,
         centre, radius = _cross_sections(path, surface, tree, spacing, config.reach * r0, config)
         fitted = _resample(FittedLumen(gaussian_filter1d(centre, sigma, axis=0, mode="nearest"),
                                        gaussian_filter1d(radius, sigma, mode="nearest")), spacing)
+        if len(fitted.points) < 2:  # no direction to go on in, nor a tube to cut into cells
+            raise InputError(f"{name}: the surface gives usable cross-sections of the lumen over "
+                             f"less than half a station ({0.5 * spacing:.3g}); too little wall "
+                             f"around the camera path for a lumen fit")
         # Where the surface ends, the centreline goes on straight with the end radius.
         lumen = FittedLumen(_extended(fitted.points, ahead, behind, spacing),
                             np.pad(fitted.radius, (behind, ahead), mode="edge"))

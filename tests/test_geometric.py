@@ -16,7 +16,7 @@ from test_coverage import (
 )
 
 from hybrid.coverage import DELTA_PAIRS_CM, pair_key
-from hybrid.geometric_coverage import GeometricConfig, geometric_coverage
+from hybrid.geometric_coverage import GeometricConfig, geometric_coverage, tube_cells
 from hybrid.lumen_fit import FittedLumen, LumenFitConfig, fit_lumen, metric_scale
 from hybrid.types import Camera, InputError
 
@@ -113,6 +113,14 @@ def test_lumen_fit_bad_input():
         fit_lumen(poses[:3], curved_tube())
     with pytest.raises(InputError, match="thinning"):
         LumenFitConfig(thinning=-0.1)
+    # Wall in a band 6 mm long only (of the tube's 24 cm): its cross-sections span less than
+    # half a station, and the fitted centreline would collapse to a point (a real clip did this).
+    surface = curved_tube()
+    band = surface[np.abs(np.arctan2(surface[:, 2], BEND_RADIUS - surface[:, 0]) - 0.8) < 0.02]
+    with pytest.raises(InputError, match="less than half a station"):
+        fit_lumen(poses, band)
+    with pytest.raises(InputError, match="shorter than two cells"):
+        tube_cells(FittedLumen(np.zeros((3, 3)), np.ones(3)), 0.2, 72)
 
 
 # --- geometric coverage on the straight cylinder of test_coverage ------------------------
