@@ -52,7 +52,7 @@ class OdometryConfig:
     intensity_huber: float = 0.1
     """Huber threshold of the intensity residual (intensity in [0, 1]; Open3D's default)."""
     threads: int | None = None
-    """Pairs aligned at once, one thread each (None: one per CPU core this process may use).
+    """Pairs aligned at once, one thread each (None: one per CPU core).
     The result does not depend on it."""
 
     def __post_init__(self) -> None:
@@ -141,7 +141,7 @@ def refine_relative_poses(relative: dict[int, np.ndarray], depth: Sequence[np.nd
             else:
                 refined[g][t - g] = pose
 
-    threads = config.threads or len(os.sched_getaffinity(0))
+    threads = config.threads or os.cpu_count() or 1
     pending: tuple[list[tuple[int, int]], Iterator[np.ndarray | None]] | None = None
     with (_one_thread(), ThreadPoolExecutor(threads) as pool,
           tqdm(total=n, desc=f"odometry {name}", unit="frame", disable=not progress) as bar):

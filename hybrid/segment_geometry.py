@@ -59,8 +59,7 @@ def local_segment_coverage(depth: Sequence[np.ndarray], K: np.ndarray, poses: np
     depth and poses in one (any) unit, made metric by `scale` (cm per unit) or, if None, by
     each window's scale rule; a segment whose window cannot be reconstructed (the camera
     barely moves, no surface) gets coverage None and the reason. Segments are computed in
-    `threads` threads at once (None: one per CPU core this process may use); the result does
-    not depend on it.
+    `threads` threads at once (None: one per CPU core); the result does not depend on it.
     """
     n = len(poses)
     if n < segment_frames:
@@ -87,7 +86,7 @@ def local_segment_coverage(depth: Sequence[np.ndarray], K: np.ndarray, poses: np
                                     {pair_key(p): None for p in DELTA_PAIRS_CM})
             return LocalSegment(empty, None, str(err))
 
-    with ThreadPoolExecutor(threads or len(os.sched_getaffinity(0))) as pool:
+    with ThreadPoolExecutor(threads or os.cpu_count() or 1) as pool:
         return list(pool.map(one, range(n // segment_frames)))
 
 
