@@ -6,9 +6,10 @@
    README); each sequence is one image folder, played as one 10-s segment (its frame rate set to
    frames / 10 s: the frames are not adjacent, so this is a stress test).
 Prints per run the segments' learned and geometric coverage, the branches' 3-class agreement
-and the share of frames the motion network has moving along their view (travel z > 0 before
-`--insertion` negates it: a withdrawal looking back, or an advance looking ahead), and writes a
-JSON summary.
+the share of frames the motion network has moving along their view (travel z > 0 before
+`--insertion` negates it: a withdrawal looking back, or an advance looking ahead) and the 5th
+percentile and median of the odometry's fitness between consecutive frames, and writes a JSON
+summary.
 
     python benchmarks/real_runs.py --data ../shared/data --out /tmp/c2d2-real
 """
@@ -46,7 +47,9 @@ def run(source: Path, out: Path, *extra: str) -> dict:
                          for s in table["segments"]],
             "intrinsics": {k: json.loads((out / "intrinsics.json").read_text())[k]
                            for k in ("fx", "fy", "cx", "cy", "width", "height")},
-            "moving_along_view": moving_along_view(out)}
+            "moving_along_view": moving_along_view(out),
+            "odometry_fitness_gap1": json.loads((out / W.ODOMETRY).read_text())[
+                "fitness_p5_median"]["1"]}
 
 
 def moving_along_view(out: Path) -> float:
@@ -96,7 +99,8 @@ def main() -> None:
         print(f"{name:16s} agreement {r['agreement']}  learned {[round(v, 2) for v in learned]}"
               f"  geometric {fmt}  K fx {r['intrinsics']['fx']:.0f} "
               f"({r['intrinsics']['width']}x{r['intrinsics']['height']})  moving along the "
-              f"view {r['moving_along_view']:.0%}")
+              f"view {r['moving_along_view']:.0%}  odometry fitness p5/median "
+              f"{r['odometry_fitness_gap1']}")
 
 
 if __name__ == "__main__":

@@ -15,7 +15,6 @@ releases the GIL), so the refined poses repeat exactly whatever the number of co
 
 from __future__ import annotations
 
-import os
 from collections.abc import Iterator, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
@@ -26,7 +25,7 @@ import open3d as o3d
 from scipy.ndimage import distance_transform_edt
 from tqdm import tqdm
 
-from hybrid.types import InputError
+from hybrid.types import InputError, thread_count
 
 _odometry = o3d.t.pipelines.odometry
 _BLOCK = 64
@@ -51,14 +50,8 @@ class OdometryConfig:
     as a fraction; not tuned)."""
     intensity_huber: float = 0.1
     """Huber threshold of the intensity residual (intensity in [0, 1]; Open3D's default)."""
-    threads: int | None = None
-    """Pairs aligned at once, one thread each (None: one per CPU core).
-    The result does not depend on it."""
 
     def __post_init__(self) -> None:
-        if self.threads is not None and self.threads < 1:
-            raise InputError(f"odometry threads must be at least 1 (or None), got "
-                             f"{self.threads}")
         if min(self.depth_outlier, self.depth_huber, self.intensity_huber) <= 0:
             raise InputError("odometry depth_outlier, depth_huber and intensity_huber must be "
                              "positive")
@@ -70,22 +63,27 @@ class OdometryConfig:
 @dataclass
 class RefinedPoses:
     """The refined relative poses ({g: (N-g, 4, 4)}, entry t mapping camera t's points into
-    camera t+g) and, per gap, how many pairs kept the network's estimate."""
+    camera t+g), per gap how many pairs kept the network's estimate, and each pair's fitness:
+    the fraction of the source's valid pixels that found a correspondence (Open3D's
+    `fitness`; NaN for a kept pair). Adjacent video frames give nearly 1; frames that share
+    little give less (docs/posegraph.md)."""
 
     relative: dict[int, np.ndarray]
     kept: dict[int, int]
+    fitness: dict[int, np.ndarray]
 
 
 def refine_relative_poses(relative: dict[int, np.ndarray], depth: Sequence[np.ndarray],
                           rgb: Sequence[np.ndarray], K: np.ndarray,
                           region: np.ndarray | None = None,
                           config: OdometryConfig = OdometryConfig(), name: str = "video",
-                          progress: bool = False) -> RefinedPoses:
+                          progress: bool = False, threads: int | None = None) -> RefinedPoses:
     """Refine every relative pose of `relative` by hybrid (colour + depth) RGB-D odometry.
 
     depth: (H, W) maps, 0 where unknown; rgb: (H, W, 3) uint8 frames of the same size; K at
     that size. Frames are read once, in order, a block at a time; the pairs of a block are
-    aligned in `config.threads` threads while the next block is read.
+    aligned in `threads` threads (None: one per core) while the next block is read. The result
+    does not depend on the threads.
     """
     if not relative:
         raise InputError(f"{name}: no relative poses to refine")
@@ -114,35 +112,38 @@ def refine_relative_poses(relative: dict[int, np.ndarray], depth: Sequence[np.nd
     criteria = [_odometry.OdometryConvergenceCriteria(i) for i in config.iterations]
     refined = {g: rel.copy() for g, rel in relative.items()}
     kept = dict.fromkeys(relative, 0)
+    fitness = {g: np.full(len(rel), np.nan) for g, rel in relative.items()}
     nearest = None if region is None else _nearest_in(region)
     window: dict[int, tuple[o3d.t.geometry.RGBDImage, o3d.t.geometry.RGBDImage]] = {}
     back = max(relative)
     def align(source: o3d.t.geometry.RGBDImage, target: o3d.t.geometry.RGBDImage,
-              start: np.ndarray) -> np.ndarray | None:
+              start: np.ndarray) -> _odometry.OdometryResult | None:
         try:
-            pose = _odometry.rgbd_odometry_multi_scale(
+            result = _odometry.rgbd_odometry_multi_scale(
                 source, target, intrinsics, o3d.core.Tensor(start), depth_scale=1.0,
                 depth_max=float("inf"), criteria_list=criteria, method=_odometry.Method.Hybrid,
-                params=params).transformation.numpy()
+                params=params)
         except RuntimeError as err:  # Open3D's two ways of saying "cannot solve"
             if not any(m in str(err) for m in ("inlier_count", "tracking failed")):
                 raise
             return None
-        return pose if np.isfinite(pose).all() else None
+        return result if np.isfinite(result.transformation.numpy()).all() else None
 
-    def pair(job: tuple[int, int]) -> np.ndarray | None:
+    def pair(job: tuple[int, int]) -> _odometry.OdometryResult | None:
         g, t = job  # frame t - g onto frame t
         return align(window[t - g][0], window[t][1], relative[g][t - g])
 
-    def collect(jobs: list[tuple[int, int]], poses: Iterator[np.ndarray | None]) -> None:
-        for (g, t), pose in zip(jobs, poses, strict=True):
-            if pose is None:
+    def collect(jobs: list[tuple[int, int]],
+                results: Iterator[_odometry.OdometryResult | None]) -> None:
+        for (g, t), result in zip(jobs, results, strict=True):
+            if result is None:
                 kept[g] += 1
             else:
-                refined[g][t - g] = pose
+                refined[g][t - g] = result.transformation.numpy()
+                fitness[g][t - g] = result.fitness
 
-    threads = config.threads or os.cpu_count() or 1
-    pending: tuple[list[tuple[int, int]], Iterator[np.ndarray | None]] | None = None
+    threads = thread_count(threads, "odometry threads")
+    pending: tuple[list[tuple[int, int]], Iterator[_odometry.OdometryResult | None]] | None = None
     with (_one_thread(), ThreadPoolExecutor(threads) as pool,
           tqdm(total=n, desc=f"odometry {name}", unit="frame", disable=not progress) as bar):
         for begin in range(0, n, _BLOCK):
@@ -150,15 +151,15 @@ def refine_relative_poses(relative: dict[int, np.ndarray], depth: Sequence[np.nd
             for t in range(begin, stop):  # read while the threads align the block before
                 window[t] = _images(rgb[t], depth[t], region, nearest, f"{name} frame {t}")
             bar.update(stop - begin)
-            if pending:
+            if pending is not None:
                 collect(*pending)
             for t in [t for t in window if t < begin - back]:  # no pair left reads them
                 del window[t]
             jobs = [(g, t) for t in range(begin, stop) for g in relative if g <= t]
             pending = (jobs, pool.map(pair, jobs))
-        if pending:
+        if pending is not None:
             collect(*pending)
-    return RefinedPoses(refined, kept)
+    return RefinedPoses(refined, kept, fitness)
 
 
 @contextmanager

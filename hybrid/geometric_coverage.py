@@ -65,7 +65,7 @@ def tube_cells(lumen: FittedLumen, cell_length: float, cells_around: int) -> Tub
     arclength = lumen.arclength
     ell = np.arange(0.5 * cell_length, arclength[-1], cell_length)
     if len(ell) < 2:
-        raise InputError(f"the lumen is {arclength[-1]:.3g} long, shorter than two cells of "
+        raise InputError(f"the lumen is {arclength[-1]:.3g} long, too short for two cells of "
                          f"{cell_length:g}; no tube to measure coverage on")
     centre = np.stack([np.interp(ell, arclength, lumen.points[:, k]) for k in range(3)], 1)
     radius = np.interp(ell, arclength, lumen.radius)

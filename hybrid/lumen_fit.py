@@ -69,10 +69,11 @@ class LumenFitConfig:
     thinning: float = 0.1
     """Before the fit, the surface keeps one point (the mean) per cube of this side, × r0
     (0: every point). The wall then counts by its area, not by how many frames saw it or from
-    how close, and the fit's time no longer grows with how often the video passes a place."""
+    how close, and the fit reads far fewer points. (The cubes are axis-aligned, so the fit
+    depends a little on how the world frame is turned.)"""
 
     def __post_init__(self) -> None:
-        if self.thinning < 0:
+        if not self.thinning >= 0:
             raise InputError(f"LumenFitConfig.thinning must be >= 0, got {self.thinning}")
         if self.iterations < 1 or self.spacing <= 0 or self.reach <= 0:
             raise InputError(f"LumenFitConfig needs iterations >= 1 and positive spacing and "
@@ -168,7 +169,13 @@ def _thinned(points: np.ndarray, cell: float) -> np.ndarray:
     """The mean of the points in each occupied cube of side `cell` (Open3D's voxel
     down-sampling), in a fixed order."""
     cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
-    return _sorted(np.asarray(cloud.voxel_down_sample(cell).points))
+    try:
+        thin = cloud.voxel_down_sample(cell)
+    except RuntimeError as err:  # more cubes than Open3D can index: a far outlier
+        raise InputError(f"the surface spans {np.ptp(points, axis=0).max():.3g}, too far for "
+                         f"cubes of {cell:.3g} (Open3D: {err}); check the depth for outliers"
+                         ) from err
+    return _sorted(np.asarray(thin.points))
 
 
 def _stations(centres: np.ndarray, spacing: float) -> np.ndarray:

@@ -181,7 +181,10 @@ class _Run:
                                             self.network_K(), self.region, self.config.odometry,
                                             name=str(self.source), progress=self.progress)
             relative = refined.relative
-            W.write_json(self.path(W.ODOMETRY), {"pairs_kept_unrefined": refined.kept})
+            W.write_json(self.path(W.ODOMETRY), {
+                "pairs_kept_unrefined": refined.kept,
+                "fitness_p5_median": {g: _percentiles(f, (5, 50))
+                                      for g, f in refined.fitness.items()}})
         result = smooth_trajectory(relative, self.config.posegraph, name=str(self.source))
         for name, poses in ((W.POSES_RAW, result.chained), (W.POSES, result.poses)):
             np.save(self.path(name + ".partial.npy"), poses)
@@ -263,6 +266,12 @@ class _Run:
     def network_K(self) -> np.ndarray:
         data = json.loads(self.path(W.INTRINSICS).read_text())
         return Camera(self.size[1], self.size[0], **data["network"]).K
+
+
+def _percentiles(values: np.ndarray, q: tuple[float, ...]) -> list[float] | None:
+    """The q-th percentiles of the finite values, rounded (None if there are none)."""
+    values = values[np.isfinite(values)]
+    return np.percentile(values, q).round(4).tolist() if values.size else None
 
 
 def video_features(source: Path, work: Path, config: RunConfig, models: Models,

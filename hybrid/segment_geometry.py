@@ -10,7 +10,6 @@ only accumulates within a window.
 
 from __future__ import annotations
 
-import os
 from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, replace
@@ -21,7 +20,7 @@ import numpy as np
 from hybrid.coverage import DEFAULT_PAIR_CM, DELTA_PAIRS_CM, SegmentCoverage, pair_key
 from hybrid.geometric_coverage import GeometricConfig, GeometricCoverage, geometric_coverage
 from hybrid.reconstruction import ReconstructionConfig, ScaledDepth, reconstruct
-from hybrid.types import InputError
+from hybrid.types import InputError, thread_count
 
 
 class _Window(Sequence):
@@ -59,7 +58,8 @@ def local_segment_coverage(depth: Sequence[np.ndarray], K: np.ndarray, poses: np
     depth and poses in one (any) unit, made metric by `scale` (cm per unit) or, if None, by
     each window's scale rule; a segment whose window cannot be reconstructed (the camera
     barely moves, no surface) gets coverage None and the reason. Segments are computed in
-    `threads` threads at once (None: one per CPU core); the result does not depend on it.
+    `threads` threads at once (None: one per core, at most 2: the TSDF holds Python's lock, so
+    more gain little, and each holds its window's volume); the result does not depend on it.
     """
     n = len(poses)
     if n < segment_frames:
@@ -86,7 +86,7 @@ def local_segment_coverage(depth: Sequence[np.ndarray], K: np.ndarray, poses: np
                                     {pair_key(p): None for p in DELTA_PAIRS_CM})
             return LocalSegment(empty, None, str(err))
 
-    with ThreadPoolExecutor(threads or os.cpu_count() or 1) as pool:
+    with ThreadPoolExecutor(thread_count(threads, "segment threads", most=2)) as pool:
         return list(pool.map(one, range(n // segment_frames)))
 
 

@@ -1,4 +1,4 @@
-"""Types shared by every package: camera intrinsics, pose checks, input errors.
+"""Types shared by every package: camera intrinsics, pose checks, input errors, thread counts.
 
 This module imports nothing from the project, so `learned` and `fusion` may use it too.
 """
@@ -6,6 +6,7 @@ This module imports nothing from the project, so `learned` and `fusion` may use 
 from __future__ import annotations
 
 import json
+import os
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -97,3 +98,16 @@ def chain_poses(relative: np.ndarray) -> np.ndarray:
     for T in relative:
         poses.append(poses[-1] @ np.linalg.inv(T))
     return np.stack(poses)
+
+
+def thread_count(threads: int | None, name: str, most: int | None = None) -> int:
+    """`threads` if given (at least 1), else one per CPU core this process may run on, at most
+    `most`."""
+    if threads is not None:
+        if threads < 1:
+            raise InputError(f"{name} must be at least 1 (or None for one per core), got "
+                             f"{threads}")
+        return threads
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else \
+        os.cpu_count() or 1
+    return min(cores, most or cores)

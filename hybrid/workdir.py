@@ -23,7 +23,9 @@ RELATIVE = "relative_poses.npz"
 INTRINSICS = "intrinsics.json"
 """K at the networks' size and in the input's pixels, with its spread."""
 ODOMETRY = "odometry.json"
-"""Per gap, how many relative poses RGB-D odometry could not refine (kept as inferred)."""
+"""Per gap, how many relative poses RGB-D odometry could not refine (kept as inferred), and the
+5th percentile and median of the refined pairs' fitness (fraction of pixels that found a
+correspondence: about 1 between adjacent video frames)."""
 POSES_RAW = "poses_raw.npy"
 """(N, 4, 4) camera-to-world poses chained from the consecutive relative poses the pose graph
 reads (refined by RGB-D odometry unless it is off)."""

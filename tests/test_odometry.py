@@ -32,7 +32,7 @@ def truth_at(poses: np.ndarray, gap: int) -> np.ndarray:
     return np.linalg.inv(poses[gap:]) @ poses[:-gap]
 
 
-def test_odometry_recovers_the_rotation_from_a_wrong_start(procedure, monkeypatch):
+def test_odometry_recovers_the_rotation_from_a_wrong_start(procedure):
     depth, rgb, K, poses = procedure
     threads = o3d.utility.get_max_threads()
     rng = np.random.default_rng(0)
@@ -44,23 +44,35 @@ def test_odometry_recovers_the_rotation_from_a_wrong_start(procedure, monkeypatc
         start[g] = rel.copy()
         start[g][:, :3, :3] = Rotation.from_rotvec(axes).as_matrix() @ rel[:, :3, :3]
     refined = refine_relative_poses(start, depth, rgb, K)
-    # Pairs run on threads, each pair on one, a block of frames at a time: the same result
-    # whatever the threads and however the frames fall into blocks.
-    for count, block in ((1, 64), (3, 64), (2, 7), (3, 1)):
-        monkeypatch.setattr(odometry, "_BLOCK", block)
-        again = refine_relative_poses(start, depth, rgb, K, config=OdometryConfig(threads=count))
-        for g in truth:
-            np.testing.assert_array_equal(again.relative[g], refined.relative[g])
     for g in truth:
         before = rotation_error_deg(start[g], truth[g]).mean()
         after = rotation_error_deg(refined.relative[g], truth[g]).mean()
         assert before == pytest.approx(1.5)
         assert after < 0.3, (g, after)
         assert refined.kept[g] == 0
+        assert np.all((refined.fitness[g] > 0) & (refined.fitness[g] <= 1))  # all refined
         moved = np.linalg.norm(refined.relative[g][:, :3, 3] - truth[g][:, :3, 3], axis=1)
         step = np.linalg.norm(truth[g][:, :3, 3], axis=1)
         assert np.median(moved / step) < 0.5
     assert o3d.utility.get_max_threads() == threads  # one thread only while refining
+
+
+def test_threads_and_blocks_do_not_change_the_result(procedure, monkeypatch):
+    """Pairs run on threads, each pair on one, a block of frames at a time: the same bytes
+    whatever the threads and however the 40 frames fall into blocks (gap 9 spans blocks of 7
+    and 1 frames; gap 45 is longer than the clip and has no pair)."""
+    depth, rgb, K, poses = procedure
+    start = {g: truth_at(poses, g) for g in (1, 2, 9)}
+    start[45] = np.zeros((0, 4, 4))
+    first = refine_relative_poses(start, depth, rgb, K, threads=1)
+    assert first.kept[45] == 0 and first.relative[45].shape == (0, 4, 4)
+    for count, block in ((3, 64), (2, 7), (3, 1)):
+        monkeypatch.setattr(odometry, "_BLOCK", block)
+        again = refine_relative_poses(start, depth, rgb, K, threads=count)
+        assert again.kept == first.kept
+        for g in start:
+            np.testing.assert_array_equal(again.relative[g], first.relative[g])
+            np.testing.assert_array_equal(again.fitness[g], first.fitness[g])
 
 
 def test_a_region_keeps_the_odometry_to_the_image(procedure):
@@ -91,6 +103,7 @@ def test_odometry_keeps_the_estimate_of_a_pair_it_cannot_align(procedure):
     refined = refine_relative_poses(start, blank, rgb, K)
     assert refined.kept[1] == len(start[1])
     np.testing.assert_array_equal(refined.relative[1], start[1])
+    assert np.isnan(refined.fitness[1]).all()
 
 
 def test_bad_input_is_refused(procedure):
@@ -119,4 +132,4 @@ def test_bad_input_is_refused(procedure):
     with pytest.raises(InputError, match="per pyramid level"):
         OdometryConfig(iterations=())
     with pytest.raises(InputError, match="threads"):
-        OdometryConfig(threads=0)
+        refine_relative_poses(rel, depth, rgb, K, threads=0)

@@ -148,9 +148,12 @@ def test_run_writes_every_file_of_the_work_directory(pipeline_run, procedure):
     depth = np.load(out / W.DEPTH, mmap_mode="r")
     assert n == 200 and frames.shape[0] == n and frames.dtype == np.uint8
     assert depth.shape == frames.shape[:3] and np.isfinite(depth).all()
-    kept = json.loads((out / W.ODOMETRY).read_text())["pairs_kept_unrefined"]
+    odometry = json.loads((out / W.ODOMETRY).read_text())
+    kept = odometry["pairs_kept_unrefined"]
     assert {int(g) for g in kept} == set(RunConfig().posegraph.skips)
     assert all(count == 0 for count in kept.values())  # textured frames: every pair aligned
+    for p5, median in odometry["fitness_p5_median"].values():
+        assert 0 < p5 <= median <= 1
     assert np.load(out / W.POSES).shape == (n, 4, 4)
     ingested = Ingested.load(out / W.INGEST)
     assert (ingested.frames, ingested.fps, ingested.decode_warning) == (n, FPS, None)
@@ -276,7 +279,7 @@ def test_geometric_stages_repeat_exactly(pipeline_run, procedure, tmp_path):
     work = tmp_path / "again"
     shutil.copytree(out, work)
     for name in (W.ODOMETRY, W.POSES_RAW, W.POSES, W.MESH, W.LUMEN, W.RECONSTRUCTION,
-                 W.GEOMETRIC, W.LEARNED, W.COVERAGE_JSON, W.COVERAGE_CSV, W.REPORT):
+                 W.GEOMETRIC, W.COVERAGE_JSON, W.COVERAGE_CSV, W.REPORT):
         (work / name).unlink()
     shutil.rmtree(work / W.MAPS)
     result = runner.invoke(app, ["run", str(procedure.path), "--out", str(work)])
