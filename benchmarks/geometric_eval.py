@@ -136,7 +136,8 @@ def local_row(mode: str, proc: Procedure, learned: dict, depth_true: list[np.nda
 
 
 def whole_video_row(mode: str, proc: Procedure, learned: dict, depth_true: list[np.ndarray],
-                    config: ReconstructionConfig, geometric: GeometricConfig) -> dict:
+                    rgb: list[np.ndarray], config: ReconstructionConfig,
+                    geometric: GeometricConfig) -> dict:
     """One reconstruction and lumen for the whole video: the oracle modes, or learned."""
     if mode == "learned":
         depth, K, poses = learned["depth"], learned["K"], learned["poses"]
@@ -145,7 +146,6 @@ def whole_video_row(mode: str, proc: Procedure, learned: dict, depth_true: list[
         depth, K, poses, network_s = depth_true, proc.camera.K, proc.poses, 0.0
         scale = {"oracle": 1.0, "oracle-s0.7": 0.7, "oracle-s1.3": 1.3,
                  "oracle-rule": None}[mode]
-    rgb = [proc.rgb(i) for i in range(proc.num_frames)]
     rec = reconstruct(depth, K, poses, rgb, config=config, scale=scale, fps=proc.camera.fps,
                       name=proc.path.name)
     result = geometric_coverage(rec.lumen, rec.poses, ScaledDepth(depth, rec.scale), K,
@@ -168,6 +168,8 @@ def run_procedure(proc: Procedure, model, graph: PoseGraphConfig, odometry: Odom
     truth = proc.coverage.segment_labels()
     depth_true = [proc.depth(i) for i in range(proc.num_frames)]
     out = {"truth": truth.tolist()}
+    whole_video = [m for m in modes if m != "learned-local" and m not in LOCAL_SWAPS]
+    rgb = [proc.rgb(i) for i in range(proc.num_frames)] if whole_video else []
     learned = {}
     if any(m.startswith("learned") or m in LOCAL_SWAPS for m in modes):
         learned = learned_inputs(proc, model, graph, odometry)
@@ -177,9 +179,10 @@ def run_procedure(proc: Procedure, model, graph: PoseGraphConfig, odometry: Odom
             learned["to_cm"] = depth_ratio(learned["depth"], depth_true)
     for mode in modes:
         tic = time.time()
-        local = mode == "learned-local" or mode in LOCAL_SWAPS
-        row = (local_row if local else whole_video_row)(mode, proc, learned, depth_true, config,
-                                                        geometric)
+        if mode in whole_video:
+            row = whole_video_row(mode, proc, learned, depth_true, rgb, config, geometric)
+        else:
+            row = local_row(mode, proc, learned, depth_true, config, geometric)
         # seconds: the geometry, with the odometry + pose graph where all poses are learned
         graph_s = learned["graph_s"] if mode in ("learned", "learned-local", "local-metric") \
             else 0.0

@@ -5,7 +5,7 @@ poses for one frame gap, then the same refined by fusion.odometry (given iterati
 pyramid level; --half: at half resolution); against the true relative rotations, the per-axis
 slopes (x, y, z of the rotation vector, least squares through 0), the mean rotation error and
 the median angle between the estimated and the true translation directions, and the odometry's
-milliseconds per pair.
+milliseconds per pair (on one thread unless --threads; the refined poses do not depend on it).
 
     python benchmarks/odometry_rotation.py --data data/cov-pink/proc_0012 --iterations 10 5 3
 """
@@ -65,6 +65,8 @@ def main() -> None:
                         default=list(OdometryConfig().iterations),
                         help="per pyramid level, coarsest first")
     parser.add_argument("--half", action="store_true", help="odometry at half resolution")
+    parser.add_argument("--threads", type=int, default=1,
+                        help="pairs aligned at once (ms/pair is then per this many cores)")
     args = parser.parse_args()
     torch.set_num_threads(1)
     model = load_depth_model(SHIPPED_DEPTH)
@@ -81,12 +83,13 @@ def main() -> None:
             frames, depth, K = halved(frames, depth, K)
         tic = time.perf_counter()
         refined = refine_relative_poses({args.gap: inferred.relative[args.gap]}, depth, frames,
-                                        K, config=config, name=path.name)
+                                        K, config=config, name=path.name,
+                                        threads=args.threads)
         ms = (time.perf_counter() - tic) / len(truth) * 1000
         print(f"{path}: gap {args.gap}, {count} frames\n"
               f"  network   {figures(inferred.relative[args.gap], truth)}\n"
               f"  odometry  {figures(refined.relative[args.gap], truth)}  "
-              f"{ms:.2f} ms/pair (iterations {args.iterations}"
+              f"{ms:.2f} ms/pair on {args.threads} thread(s) (iterations {args.iterations}"
               f"{', half resolution' if args.half else ''})", flush=True)
 
 

@@ -116,6 +116,7 @@ def refine_relative_poses(relative: dict[int, np.ndarray], depth: Sequence[np.nd
     nearest = None if region is None else _nearest_in(region)
     window: dict[int, tuple[o3d.t.geometry.RGBDImage, o3d.t.geometry.RGBDImage]] = {}
     back = max(relative)
+
     def align(source: o3d.t.geometry.RGBDImage, target: o3d.t.geometry.RGBDImage,
               start: np.ndarray) -> _odometry.OdometryResult | None:
         try:

@@ -33,7 +33,7 @@ class ReconstructionConfig:
     voxel_cm: float = 0.2
     """TSDF voxel size once the scale is fixed. The mesh serves the lumen fit, which thins
     the surface to cubes of a tenth of the radius (2.5 mm at the typical radius), and the
-    report: 2 mm fuses 3 times faster than 1 mm (docs/geometric.md)."""
+    report: 2 mm fuses about twice as fast as 1 mm (docs/geometric.md)."""
     depth_max_cm: float = 6.0
     """Depth beyond which pixels are not fused (the far lumen is dark and uncertain)."""
     cloud_stride: int = 10
