@@ -94,6 +94,12 @@ class DepthConfig:
     """Relight the warped source for the light at the camera: its intensity times (source ray
     length / target ray length)^(2 / display_gamma), with gradients to depth and motion, so
     that the light's falloff is a depth cue where parallax is weak."""
+    w_shading: float = 0.0
+    """Inverse-square shading prior on the target's depth (learned.shading): the light at the
+    camera as a depth cue where parallax is weak; 0: off."""
+    shading_steers: str = "depth"
+    """What the shading prior's gradient reaches: "depth", "intrinsics" (the depth held fixed
+    in it) or "both"."""
     display_gamma: float = 2.2
     """Gamma of the video's encoding (the inverse-square law holds for linear intensity)."""
     seed: int = 0
@@ -115,6 +121,11 @@ class DepthConfig:
                                                           and not self.init):
             raise ValueError(f"chain_teacher must be 'self' or 'init' (with an init model), "
                              f"got {self.chain_teacher!r}")
+        if not self.w_shading >= 0:
+            raise ValueError(f"w_shading must be >= 0, got {self.w_shading}")
+        if self.shading_steers not in ("depth", "intrinsics", "both"):
+            raise ValueError(f"shading_steers must be 'depth', 'intrinsics' or 'both', got "
+                             f"{self.shading_steers!r}")
         if not self.display_gamma > 0:
             raise ValueError(f"display_gamma must be positive, got {self.display_gamma}")
         if not self.input_fps >= 0:

@@ -2,7 +2,8 @@
 
 photometric (L1 + SSIM, optionally also at coarser resolutions) with per-pixel minimum over
 sources and auto-masking, occlusion-aware depth consistency, rotation/translation cycle
-consistency, edge-aware smoothness, and optionally rigid flow against classical optical flow.
+consistency, edge-aware smoothness, and optionally rigid flow against classical optical flow
+and an inverse-square shading prior (learned.shading).
 Endoscopy helps: per-pair brightness match, specular and border masks, and an optional
 inverse-square correction for the light that moves with the camera.
 """
@@ -18,6 +19,7 @@ from kornia.metrics import ssim
 
 from learned.config import DepthConfig
 from learned.geometry import Warp, project, transform_from, warp
+from learned.shading import shading_loss
 
 _SPECULAR_THRESHOLD = 0.96
 """A pixel whose mean RGB exceeds this is a specular highlight."""
@@ -119,6 +121,7 @@ class LossTerms:
     rotation_cycle: torch.Tensor
     translation_cycle: torch.Tensor
     flow: torch.Tensor
+    shading: torch.Tensor
     chain: torch.Tensor = field(default_factory=lambda: torch.zeros(()))
     """Set by DepthModel.loss when config.w_chain > 0."""
 
@@ -195,13 +198,27 @@ def view_synthesis_loss(
     rotation_cycle = torch.stack(rot_cycle).mean()
     translation_cycle = torch.stack(trans_cycle).mean()
     flow = torch.stack(flow_errors).mean() if flow_errors else torch.zeros_like(photometric)
+    shading = _shading(target, target_depth, K, usable, config)
     total = (photometric + config.w_smooth * smoothness
              + config.w_depth_consistency * depth_consistency
              + config.w_rotation_cycle * rotation_cycle
              + config.w_translation_cycle * translation_cycle
-             + config.w_flow * flow)
+             + config.w_flow * flow
+             + config.w_shading * shading)
     return LossTerms(total, photometric, smoothness, depth_consistency, rotation_cycle,
-                     translation_cycle, flow)
+                     translation_cycle, flow, shading)
+
+
+def _shading(target: torch.Tensor, depth: torch.Tensor, K: torch.Tensor, usable: torch.Tensor,
+             config: DepthConfig) -> torch.Tensor:
+    """The shading prior on the target, its gradient reaching what config.shading_steers says."""
+    if config.w_shading == 0:
+        return torch.zeros((), device=target.device)
+    if config.shading_steers == "depth":
+        K = K.detach()
+    elif config.shading_steers == "intrinsics":
+        depth = depth.detach()
+    return shading_loss(target, depth, K, usable, config.display_gamma)
 
 
 def _relit(image: torch.Tensor, ray_ratio: torch.Tensor, config: DepthConfig) -> torch.Tensor:

@@ -99,9 +99,11 @@ def test_pair_motion_focal_lengths_stay_positive_after_training_steps(batch):
     assert (K[:, 0, 0] > 0).all() and (K[:, 1, 1] > 0).all()  # softplus > 0 always
 
 
-def test_optimisation_reduces_the_loss_on_a_fixed_batch(batch):
+@pytest.mark.parametrize("config", [TINY, replace(TINY, w_shading=0.1)],
+                         ids=["default", "shading"])
+def test_optimisation_reduces_the_loss_on_a_fixed_batch(batch, config):
     torch.manual_seed(0)
-    model = DepthModel(TINY)
+    model = DepthModel(config)
     frames, region = batch
 
     def loss() -> dict[str, float]:
@@ -123,6 +125,10 @@ def test_optimisation_reduces_the_loss_on_a_fixed_batch(batch):
     # Both evaluations are deterministic (same batch, same noise), so any drop is real; ask for
     # 5%, far above the 1e-5 tie-break noise, as the sign that 30 Adam steps fit the batch.
     assert after["total"] < 0.95 * before["total"], (before, after)
+    if config.w_shading:  # the prior is in the loss, and training lowers it too
+        assert after["shading"] < before["shading"], (before, after)
+    else:
+        assert before["shading"] == after["shading"] == 0
 
 
 def test_checkpoint_round_trip_gives_identical_outputs(tmp_path, batch):

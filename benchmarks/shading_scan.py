@@ -1,0 +1,65 @@
+"""How sharply the inverse-square shading prior (learned.shading) tells the true depth's shape
+and the true focal length apart, on simulated procedures.
+
+For frames every `--every` frames, the prior with the true depth and K, with the depth's shape
+spoiled (gt^p, compressed or stretched about the frame's median, so only the shape changes), and
+with the focal length scaled; optionally also at a depth model's prediction. Prints the mean
+prior per procedure and over all.
+
+    .venv/bin/python benchmarks/shading_scan.py --data data/val data/test \
+        --model learned/checkpoints/depth-fast.safetensors
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from hybrid.dataset import list_procedures
+from learned.config import DepthConfig
+from learned.losses import specular
+from learned.model import load_depth_model, to_tensor
+from learned.shading import shading_loss
+
+POWERS = (0.5, 0.63, 0.8, 0.9, 1.0, 1.1, 1.25, 1.5)
+FOCALS = (0.6, 0.8, 0.9, 1.0, 1.1, 1.25, 1.5)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--data", type=Path, nargs="+", required=True)
+    parser.add_argument("--model", type=Path, help="also the prior at this model's depth")
+    parser.add_argument("--every", type=int, default=50, help="frames between frames used")
+    parser.add_argument("--gamma", type=float, default=DepthConfig().display_gamma,
+                        help="gamma the prior assumes (the simulator's styles: 2.2, dusk 1.9)")
+    args = parser.parse_args()
+    torch.set_num_threads(1)
+    gamma = args.gamma
+    model = load_depth_model(args.model) if args.model else None
+    rows: dict[str, list[float]] = {}
+    for proc in [p for d in args.data for p in list_procedures(d)]:
+        ts = range(0, proc.num_frames, args.every)
+        images = torch.stack([to_tensor(proc.rgb(t)) for t in ts])
+        truth = torch.stack([torch.from_numpy(proc.depth(t))[None] for t in ts]).clamp(min=0.01)
+        K = torch.tensor(proc.camera.K, dtype=torch.float32).expand(len(images), 3, 3)
+        usable = (truth > 0.01) & ~specular(images)
+        median = truth.flatten(1).median(dim=1).values[:, None, None, None]
+        cases = {f"depth^{p}": (truth**p * median ** (1 - p), K) for p in POWERS}
+        for f in FOCALS:
+            cases[f"focal x{f}"] = (truth, K * torch.tensor([[f], [f], [1.0]]))
+        if model is not None:
+            with torch.no_grad():
+                cases["model"] = (model.depth(images), K)
+        values = {name: float(shading_loss(images, depth, k, usable, gamma))
+                  for name, (depth, k) in cases.items()}
+        for name, value in values.items():
+            rows.setdefault(name, []).append(value)
+        print(f"{proc.path}: " + "  ".join(f"{k} {v:.3f}" for k, v in values.items()))
+    print("mean: " + "  ".join(f"{k} {np.mean(v):.3f}" for k, v in rows.items()))
+
+
+if __name__ == "__main__":
+    main()
