@@ -3,8 +3,8 @@ and the true focal length apart, on simulated procedures.
 
 For frames every `--every` frames, the prior with the true depth and K, with the depth's shape
 spoiled (gt^p, compressed or stretched about the frame's median, so only the shape changes), and
-with the focal length scaled; optionally also at a depth model's prediction. Prints the mean
-prior per procedure and over all.
+with the focal length scaled; optionally also at a depth model's prediction, with the true and
+with scaled focal lengths. Prints the prior per procedure and its mean over all.
 
     .venv/bin/python benchmarks/shading_scan.py --data data/val data/test \
         --model learned/checkpoints/depth-fast.safetensors
@@ -50,9 +50,12 @@ def main() -> None:
         cases = {f"depth^{p}": (truth**p * median ** (1 - p), K) for p in POWERS}
         for f in FOCALS:
             cases[f"focal x{f}"] = (truth, K * torch.tensor([[f], [f], [1.0]]))
-        if model is not None:
+        if model is not None:  # the model's depth, with the true K and with K scaled
             with torch.no_grad():
-                cases["model"] = (model.depth(images), K)
+                predicted = model.depth(images)
+            cases["model"] = (predicted, K)
+            for f in FOCALS:
+                cases[f"model, focal x{f}"] = (predicted, K * torch.tensor([[f], [f], [1.0]]))
         values = {name: float(shading_loss(images, depth, k, usable, gamma))
                   for name, (depth, k) in cases.items()}
         for name, value in values.items():
