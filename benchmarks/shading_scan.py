@@ -7,7 +7,7 @@ with the focal length scaled; optionally also at a depth model's prediction, wit
 with scaled focal lengths. Prints the prior per procedure and its mean over all.
 
     .venv/bin/python benchmarks/shading_scan.py --data data/val data/test \
-        --model learned/checkpoints/depth-fast.safetensors
+        --model data/runs/chain-ft-frozen-w03/model.safetensors
 """
 
 from __future__ import annotations
@@ -37,15 +37,15 @@ def main() -> None:
                         help="gamma the prior assumes (the simulator's styles: 2.2, dusk 1.9)")
     args = parser.parse_args()
     torch.set_num_threads(1)
-    gamma = args.gamma
     model = load_depth_model(args.model) if args.model else None
     rows: dict[str, list[float]] = {}
     for proc in [p for d in args.data for p in list_procedures(d)]:
         ts = range(0, proc.num_frames, args.every)
         images = torch.stack([to_tensor(proc.rgb(t)) for t in ts])
-        truth = torch.stack([torch.from_numpy(proc.depth(t))[None] for t in ts]).clamp(min=0.01)
+        truth = torch.stack([torch.from_numpy(proc.depth(t))[None] for t in ts])
+        usable = (truth > 0) & ~specular(images)
+        truth = truth.clamp(min=0.01)
         K = torch.tensor(proc.camera.K, dtype=torch.float32).expand(len(images), 3, 3)
-        usable = (truth > 0.01) & ~specular(images)
         median = truth.flatten(1).median(dim=1).values[:, None, None, None]
         cases = {f"depth^{p}": (truth**p * median ** (1 - p), K) for p in POWERS}
         for f in FOCALS:
@@ -56,7 +56,7 @@ def main() -> None:
             cases["model"] = (predicted, K)
             for f in FOCALS:
                 cases[f"model, focal x{f}"] = (predicted, K * torch.tensor([[f], [f], [1.0]]))
-        values = {name: float(shading_loss(images, depth, k, usable, gamma))
+        values = {name: float(shading_loss(images, depth, k, usable, args.gamma))
                   for name, (depth, k) in cases.items()}
         for name, value in values.items():
             rows.setdefault(name, []).append(value)

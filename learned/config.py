@@ -99,7 +99,7 @@ class DepthConfig:
     camera as a depth cue where parallax is weak; 0: off."""
     shading_steers: str = "depth"
     """What the shading prior's gradient reaches: "depth", "intrinsics" (the depth held fixed
-    in it) or "both"."""
+    in it, so it trains K's head and the motion encoder it shares with the pose) or "both"."""
     display_gamma: float = 2.2
     """Gamma of the video's encoding (the inverse-square law holds for linear intensity)."""
     seed: int = 0

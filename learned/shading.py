@@ -22,7 +22,8 @@ from kornia.geometry.depth import depth_to_3d_v2, depth_to_normals
 _LIT = 0.2
 """Encoded mean RGB from which a pixel is well lit (two-sided term)."""
 _DARKEST = 0.02
-"""Encoded intensities are floored here: below it sensor noise is all there is."""
+"""Encoded mean RGB is floored here before linearising: below it sensor noise is all there
+is."""
 _GRAZING = 0.05
 """Smallest cos θ used: normals from a depth map are noisy at grazing angles."""
 
@@ -31,7 +32,7 @@ def shading_residual(image: torch.Tensor, depth: torch.Tensor, K: torch.Tensor,
                      gamma: float) -> torch.Tensor:
     """(B, 1, H, W) e = log I − log cos θ + 2 log r of images (B, 3, H, W) in [0, 1] encoded
     with `gamma`, depth (B, 1, H, W) and K (B, 3, 3)."""
-    linear = image.mean(1, keepdim=True).clamp(min=_DARKEST) ** gamma
+    linear = _brightness(image).clamp(min=_DARKEST) ** gamma
     points = depth_to_3d_v2(depth[:, 0], K).permute(0, 3, 1, 2)
     distance = points.norm(dim=1, keepdim=True)
     normals = depth_to_normals(depth, K)
@@ -43,12 +44,17 @@ def shading_loss(image: torch.Tensor, depth: torch.Tensor, K: torch.Tensor,
                  usable: torch.Tensor, gamma: float) -> torch.Tensor:
     """Mean over images of the prior (module docstring) on the usable pixels (B, 1, H, W)."""
     e = shading_residual(image, depth, K, gamma)
-    lit = usable & (image.mean(1, keepdim=True) > _LIT)
+    lit = usable & (_brightness(image) > _LIT)
     median = torch.where(lit, e, torch.nan).flatten(1).nanmedian(dim=1).values
     median = median.nan_to_num(0.0)[:, None, None, None]  # no lit pixel: the image adds 0
     has_lit = lit.flatten(1).any(dim=1)
     prior = _mean_over((e - median).abs(), lit) + _mean_over(torch.relu(median - e), usable)
     return torch.where(has_lit, prior, torch.zeros_like(prior)).mean()
+
+
+def _brightness(image: torch.Tensor) -> torch.Tensor:
+    """(B, 1, H, W) encoded mean RGB."""
+    return image.mean(1, keepdim=True)
 
 
 def _mean_over(x: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
