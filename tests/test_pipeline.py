@@ -46,7 +46,7 @@ CSV_COLUMNS = ["index", "start_frame", "stop_frame", "start_s", "end_s", "learne
 3-class labels, agreement, the mean coverage, deficient, assessable (and its usable fraction)."""
 
 # Tolerances of |branch - truth| per segment, each about twice the branch's mean absolute error
-# on held-out simulated procedures (learned segment MAE 0.05-0.105, docs/coverage.md; geometric
+# on held-out simulated procedures (learned segment MAE 0.045-0.105, docs/coverage.md; geometric
 # with learned inputs on short procedures 0.053, docs/geometric.md): they catch a gross failure
 # (wrong segments, lost scale, a broken checkpoint), not a small loss of accuracy. Measured with
 # the checkpoints shipped 2026-11-23 (run_video on SIM with seeds 0, 3 and 6): seed 0 (used
