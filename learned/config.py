@@ -95,8 +95,8 @@ class DepthConfig:
     length / target ray length)^(2 / display_gamma), with gradients to depth and motion, so
     that the light's falloff is a depth cue where parallax is weak."""
     w_shading: float = 0.0
-    """Inverse-square shading prior on the target's depth (learned.shading): the light at the
-    camera as a depth cue where parallax is weak; 0: off."""
+    """Inverse-square shading prior on the target's depth and K (learned.shading): the light at
+    the camera as a cue where parallax is weak; 0: off."""
     shading_steers: str = "depth"
     """What the shading prior's gradient reaches: "depth", "intrinsics" (the depth held fixed
     in it, so it trains K's head and the motion encoder it shares with the pose) or "both"."""
