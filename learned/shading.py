@@ -3,9 +3,9 @@
 An endoscope lights the wall from the camera, so a wall point's linear intensity is
 I = a · cos(θ) / r², with r its distance, θ the angle between its normal and the ray, and a
 its albedo times the light's gain (the lens's vignetting, not modelled, reads as albedo too).
-Given a depth map and K, the
-residual e = log I − log cos θ + 2 log r estimates log a; it is one constant over an evenly
-coloured wall when the depth has the right shape, whatever its scale. Unlike parallax, it
+Given a depth map and K, the residual e = log I − log cos θ + 2 log r estimates log a; it is
+one constant over an evenly coloured wall when the depth has the right shape, whatever its
+scale. Unlike parallax, it
 does not vanish near the focus of expansion, the far lumen that view synthesis leaves
 compressed (docs/depth.md).
 
