@@ -43,8 +43,8 @@ def main() -> None:
         batch = args.batch if name == "fast" else 4
         depth = np.random.default_rng(0).normal(
             size=(batch, 1, config.height, config.width)).astype(np.float32)
-        travel = np.zeros((batch, config.travel_size), np.float32)
-        frame_s = timed(lambda d=depth, t=travel, m=model: m.frame_outputs(d, t), 3)
+        cues = np.zeros((batch, config.cue_size), np.float32)
+        frame_s = timed(lambda d=depth, c=cues, m=model: m.frame_outputs(d, c), 3)
         features = np.random.default_rng(1).normal(
             size=(config.segment_frames, config.feature_size)).astype(np.float32)
         seg_s = timed(lambda f=features, m=model: m.segment_outputs(f, [0]), 20)

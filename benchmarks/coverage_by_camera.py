@@ -5,7 +5,9 @@ per-frame network sees a depth image, not the field of view, so a camera wider t
 assumes sees more of the wall than it predicts. Prints, per procedure (sorted by field of
 view), the per-frame bias and MAE for the default (1, 4) cm pair, the per-segment bias, and
 how often the sign of the travel input's z (moving along the view or against it) agrees with
-the true motion's; then the correlation of field of view with the per-frame bias.
+the true motion's, and, for a model that reads the field of view of the motion network's
+intrinsics, that field of view; then the correlations of field of view with the per-frame
+bias and with the network's.
 
     .venv/bin/python benchmarks/coverage_by_camera.py \
         --data data/cov-pink/proc_0012 ... [--model MODEL]
@@ -54,17 +56,25 @@ def main() -> None:
         frame, segment = predict(model, samples)
         labelled = np.isfinite(samples.frame_labels[:, pair])
         error = frame[labelled, pair] - samples.frame_labels[labelled, pair]
+        network_fov = (2 * np.degrees(np.arctan(np.exp(samples.view[0, 0])))
+                       if model.config.field_of_view == "predicted" else np.nan)
         rows.append((fov, error.mean(), np.abs(error).mean(),
                      np.nanmean(segment - samples.segment_labels),
                      travel_agreement(proc.poses, samples.travel,
-                                      model.config.travel_frames(camera.fps)), samples.name))
-    print("field of view (deg)  frame bias  frame MAE  segment bias  travel z sign  procedure")
-    for fov, bias, mae, segment_bias, agree, name in sorted(rows):
+                                      model.config.travel_frames(camera.fps)),
+                     network_fov, samples.name))
+    print("field of view (deg)  frame bias  frame MAE  segment bias  travel z sign  "
+          "network's fov  procedure")
+    for fov, bias, mae, segment_bias, agree, network_fov, name in sorted(rows):
         print(f"{fov:19.0f}  {bias:+10.3f}  {mae:9.3f}  {segment_bias:+12.3f}  {agree:13.2f}  "
-              f"{name}")
-    fovs, biases = np.array([r[0] for r in rows]), np.array([r[1] for r in rows])
+              f"{network_fov:13.0f}  {name}")
+    fovs, biases, network = (np.array([r[k] for r in rows]) for k in (0, 1, 5))
     print(f"correlation of field of view with frame bias: {np.corrcoef(fovs, biases)[0, 1]:.2f}"
           f"; mean |frame bias| {np.abs(biases).mean():.3f}")
+    if np.isfinite(network).all():
+        print(f"correlation of field of view with the network's: "
+              f"{np.corrcoef(fovs, network)[0, 1]:.2f}; mean |difference| "
+              f"{np.abs(network - fovs).mean():.1f} deg")
 
 
 if __name__ == "__main__":

@@ -51,6 +51,7 @@ from learned.frames import IMAGE_SUFFIXES, FrameSequence, check_fps
 from learned.infer import aggregate_intrinsics, infer_sequence
 from learned.model import DepthModel, load_depth_model
 from learned.travel import no_travel, travel_features
+from learned.view import view_values
 
 log = logging.getLogger(__name__)
 
@@ -98,8 +99,12 @@ class Models:
 
         depth = Path(config.depth_checkpoint or SHIPPED_DEPTH)
         coverage = Path(config.coverage_checkpoint or SHIPPED_COVERAGE)
-        return cls(load_depth_model(depth, device=device),
-                   load_coverage_model(coverage, device=device),
+        coverage_model = load_coverage_model(coverage, device=device)
+        if coverage_model.config.field_of_view == "true":
+            raise InputError(f"{coverage}: these coverage networks read the simulator's true "
+                             f"field of view (an ablation), which a video does not have; use "
+                             f"networks trained with field_of_view 'predicted' or 'none'")
+        return cls(load_depth_model(depth, device=device), coverage_model,
                    {"depth": file_tag(depth), "coverage": file_tag(coverage)})
 
 
@@ -229,16 +234,25 @@ class _Run:
         return travel_features(relative, count, self.config.reconstruction.lumen.withdrawal,
                                name=str(self.path(W.RELATIVE)))
 
+    def cues(self, count: int) -> np.ndarray:
+        """(N, cue_size): the coverage model's values beside each frame's depth, the travel
+        and (if it reads one) the field of view of the network's intrinsics."""
+        cues = [self.travel(count)]
+        if self.models.coverage.config.field_of_view == "predicted":
+            cues.append(view_values(self.network_K(), self.size[1], self.size[0], count,
+                                    name=str(self.path(W.INTRINSICS))))
+        return np.concatenate(cues, axis=1)
+
     def frame_outputs(self) -> tuple[np.ndarray, np.ndarray]:
         """Per-frame coverage (N, 3) and features (N, F), computed in chunks."""
         model = self.models.coverage
         depth, region = self.depth(), self.region
-        travel = self.travel(len(depth))
+        cues = self.cues(len(depth))
         size = (model.config.height, model.config.width)
         outputs = [model.frame_outputs(normalise_depth(
             np.asarray(depth[start:start + 512], np.float32), region, size,
             name=self.source.name, by_median=model.config.median_normalise),
-            travel[start:start + 512])
+            cues[start:start + 512])
             for start in range(0, len(depth), 512)]
         return (np.concatenate([o[0] for o in outputs]),
                 np.concatenate([o[1] for o in outputs]))

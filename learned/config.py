@@ -5,6 +5,7 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, fields, replace
 
 from learned.travel import TRAVEL_SIZE
+from learned.view import VIEW_SIZE
 
 
 @dataclass(frozen=True)
@@ -216,6 +217,10 @@ class CoverageConfig:
     """Frames (at frame_rate) between the motion network's pair that gives each frame's
     direction of travel, an input of the per-frame network besides the depth
     (learned.travel); 0: depth only, as in the paper."""
+    field_of_view: str = "none"
+    """Camera input of the per-frame network besides the depth: 'predicted' (from the motion
+    network's intrinsics, as at inference), 'true' (the simulator's camera, an ablation) or
+    'none' (learned.view)."""
     frame_rate: float = 30.0
     """Frame rate of the training videos: a segment of segment_frames lasts
     segment_frames / frame_rate seconds; other videos' travel gap is scaled by time."""
@@ -254,11 +259,19 @@ class CoverageConfig:
                              f"{self.travel_gap}")
         if not self.frame_rate > 0:
             raise ValueError(f"frame_rate must be positive, got {self.frame_rate}")
+        if self.field_of_view not in ("none", "predicted", "true"):
+            raise ValueError(f"field_of_view must be 'none', 'predicted' or 'true', got "
+                             f"{self.field_of_view!r}")
 
     @property
     def travel_size(self) -> int:
         """Per-frame travel values fed to the per-frame network (0 when travel_gap is 0)."""
         return TRAVEL_SIZE if self.travel_gap else 0
+
+    @property
+    def cue_size(self) -> int:
+        """Per-frame values beside the depth: the travel, then the field of view."""
+        return self.travel_size + (VIEW_SIZE if self.field_of_view != "none" else 0)
 
     def travel_frames(self, fps: float) -> int:
         """The travel gap, the same time in frames of a video at `fps` (0: no travel input)."""

@@ -1,8 +1,10 @@
 """Inputs and labels of the coverage networks, per simulated procedure, cached on disk.
 
 The per-frame input is the depth network's output on the procedure's RGB (what inference sees),
-or the simulator's depth for the ablation, normalised by `normalise_depth`, and the direction of
-travel from the motion network (learned.travel; the procedures are withdrawals). Labels: the
+or the simulator's depth for the ablation, normalised by `normalise_depth`, and the cues beside
+it: the direction of travel from the motion network (learned.travel; the procedures are
+withdrawals) and, if asked for, the field of view of the motion network's intrinsics or of the
+simulator's camera (learned.view). Labels: the
 per-frame coverage of coverage.json for the three Δ pairs, the default-pair coverage of
 overlapping training windows (computed here with the exact ground truth) and of the
 back-to-back segments of coverage.json (used for evaluation).
@@ -29,6 +31,7 @@ from learned.frames import FrameSequence, open_sequence
 from learned.infer import DepthOutput, infer_sequence
 from learned.model import DepthModel
 from learned.travel import no_travel, travel_features
+from learned.view import view_values
 
 
 @dataclass
@@ -40,6 +43,8 @@ class ProcedureSamples:
     """(N, 1, h, w) float16 normalised depth."""
     travel: np.ndarray
     """(N, travel_size) float32 direction of travel and log relative speed."""
+    view: np.ndarray
+    """(N, 2 or 0) float32 field-of-view values (learned.view), the same for every frame."""
     frame_labels: np.ndarray
     """(N, 3) float32 per-frame coverage per Δ pair, NaN where undefined."""
     window_starts: np.ndarray
@@ -50,6 +55,11 @@ class ProcedureSamples:
     """(S,) first frames of the back-to-back segments of coverage.json."""
     segment_labels: np.ndarray
     """(S,) their default-pair coverage."""
+
+    @property
+    def cues(self) -> np.ndarray:
+        """(N, cue_size) per-frame network values beside the depth: travel, then view."""
+        return np.concatenate([self.travel, self.view], axis=1)
 
 
 def procedure_samples(path: Path, config: CoverageConfig, depth_model: DepthModel | None,
@@ -72,11 +82,14 @@ def procedure_samples(path: Path, config: CoverageConfig, depth_model: DepthMode
     predicted = config.input_depth != "true"
     inputs_path = cache / f"input-{depth_tag if predicted else 'true'}-{size}.npy"
     relative_path = cache / f"relative-{depth_tag}-{config.travel_gap}.npy"
-    # One pass of the depth model for whichever of its two caches is missing.
+    pair_gap = config.travel_gap or 1  # the pairs whose median K gives the predicted view
+    view_path = cache / f"view-{depth_tag}-{pair_gap}.npy"
+    # One pass of the depth model for whichever of its caches are missing.
     missing_depth = predicted and not inputs_path.is_file()
-    missing_gap = config.travel_gap if config.travel_gap and not relative_path.is_file() else 0
-    network = functools.cache(lambda: _network_outputs(proc, depth_model, missing_depth,
-                                                       missing_gap, progress))
+    missing_pairs = ((config.travel_gap and not relative_path.is_file())
+                     or (config.field_of_view == "predicted" and not view_path.is_file()))
+    network = functools.cache(lambda: _network_outputs(
+        proc, depth_model, missing_depth, pair_gap if missing_pairs else 0, progress))
     inputs = _cached(inputs_path, lambda: _predicted_inputs(*network(), config) if predicted
                      else _true_inputs(proc, config))
     if config.travel_gap:
@@ -84,12 +97,23 @@ def procedure_samples(path: Path, config: CoverageConfig, depth_model: DepthMode
         travel = travel_features(relative, len(inputs), name=str(proc.path))
     else:
         travel = no_travel(len(inputs))
+    if config.field_of_view == "predicted":
+        view = _cached(view_path, lambda: view_values(
+            np.median(network()[1].K_pairs, axis=0), network()[0].size[1],
+            network()[0].size[0], 1, str(proc.path))[0])
+        view = np.tile(view, (len(inputs), 1))
+    elif config.field_of_view == "true":
+        camera = proc.camera
+        view = view_values(camera.K, camera.width, camera.height, len(inputs), str(proc.path))
+    else:
+        view = np.zeros((len(inputs), 0), dtype=np.float32)
     windows = _cached(cache / f"windows-{T}-{stride}.npy",
                       lambda: _window_labels(proc, T, stride, progress))
     labels = np.array([[np.nan if v is None else v for v in truth.per_frame[pair_key(p)]]
                        for p in truth.delta_pairs], dtype=np.float32).T
     return ProcedureSamples(
         name=f"{proc.path.parent.name}/{proc.path.name}", inputs=inputs, travel=travel,
+        view=view,
         frame_labels=labels,
         window_starts=windows[:, 0].astype(int), window_labels=windows[:, 1],
         segment_starts=np.array([s.start for s in truth.segments], dtype=int),
@@ -109,9 +133,10 @@ def _true_inputs(proc: Procedure, config: CoverageConfig) -> np.ndarray:
 def _network_outputs(proc: Procedure, depth_model: DepthModel | None, depth: bool, gap: int,
                      progress: bool) -> tuple[FrameSequence, DepthOutput]:
     """The procedure's frames and, in one pass, the depth model's depth (if `depth`) and
-    relative poses of the frame pairs (t, t + gap) (if `gap`)."""
+    relative poses and intrinsics of the frame pairs (t, t + gap) (if `gap`)."""
     if depth_model is None:
-        raise InputError("predicted-depth inputs and the travel input need a depth model")
+        raise InputError("predicted-depth inputs and the travel and predicted field-of-view "
+                         "inputs need a depth model")
     seq = open_sequence(proc.path, (depth_model.config.height, depth_model.config.width))
     return seq, infer_sequence(depth_model, seq, (gap,) if gap else (), depth=depth,
                                progress=progress)

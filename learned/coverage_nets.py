@@ -1,7 +1,8 @@
 """The two-stage coverage networks (paper section 4.2) and the rule that normalises their input.
 
-Stage 1, `FrameNet`: one depth image and the frame's direction of travel (learned.travel) ->
-coverage of that frame for the three (Δ0, Δ1) pairs; its penultimate layer (global average of
+Stage 1, `FrameNet`: one depth image and the frame's cues, its direction of travel
+(learned.travel) and optionally its camera's field of view (learned.view) -> coverage of that
+frame for the three (Δ0, Δ1) pairs; its penultimate layer (global average of
 the last ResNet stage) is the frame's feature vector.
 Stage 2, `SegmentNet`: the T x F features of a segment -> six 1-D convolutions -> average over
 time -> an affine CORAL transform (identity until adapted) -> a fully connected layer -> one
@@ -64,22 +65,22 @@ def resample_features(features: np.ndarray, segment_frames: int, window: int) ->
 
 
 class FrameNet(nn.Module):
-    """Normalised depth (B, 1, h, w) and travel (B, config.travel_size) -> per-frame coverage
-    (B, 3); features() gives (B, F). The travel values enter the encoder as constant planes
-    beside the depth, so that every layer can condition on them."""
+    """Normalised depth (B, 1, h, w) and cues (B, config.cue_size): travel, then field of
+    view -> per-frame coverage (B, 3); features() gives (B, F). The cues enter the encoder as
+    constant planes beside the depth, so that every layer can condition on them."""
 
     def __init__(self, config: CoverageConfig):
         super().__init__()
-        self.encoder = ResNetEncoder(1 + config.travel_size, config.frame_channels,
+        self.encoder = ResNetEncoder(1 + config.cue_size, config.frame_channels,
                                      config.frame_blocks, config.bottleneck)
         self.head = nn.Linear(config.feature_size, len(DELTA_PAIRS_CM))
 
-    def features(self, depth: torch.Tensor, travel: torch.Tensor) -> torch.Tensor:
-        planes = travel[:, :, None, None].expand(-1, -1, *depth.shape[-2:])
+    def features(self, depth: torch.Tensor, cues: torch.Tensor) -> torch.Tensor:
+        planes = cues[:, :, None, None].expand(-1, -1, *depth.shape[-2:])
         return self.encoder(torch.cat([depth, planes], dim=1))[-1].mean(dim=(2, 3))
 
-    def forward(self, depth: torch.Tensor, travel: torch.Tensor) -> torch.Tensor:
-        return torch.sigmoid(self.head(self.features(depth, travel)))
+    def forward(self, depth: torch.Tensor, cues: torch.Tensor) -> torch.Tensor:
+        return torch.sigmoid(self.head(self.features(depth, cues)))
 
 
 class SegmentNet(nn.Module):
@@ -135,25 +136,25 @@ class CoverageModel(nn.Module):
         self.segment = SegmentNet(config)
 
     @torch.no_grad()
-    def frame_outputs(self, inputs: np.ndarray, travel: np.ndarray, batch: int = 256
+    def frame_outputs(self, inputs: np.ndarray, cues: np.ndarray, batch: int = 256
                       ) -> tuple[np.ndarray, np.ndarray]:
-        """(N, 1, h, w) normalised depth and (N, travel_size) travel -> per-frame coverage
-        (N, 3) and features (N, F)."""
+        """(N, 1, h, w) normalised depth and (N, cue_size) cues -> per-frame coverage (N, 3)
+        and features (N, F)."""
         expected = (1, self.config.height, self.config.width)
         if inputs.ndim != 4 or inputs.shape[1:] != expected:
             raise InputError(f"per-frame input must be (N, {expected}) normalised depth for the "
                              f"{self.config.preset!r} preset, got {inputs.shape}")
-        if travel.shape != (len(inputs), self.config.travel_size):
-            raise InputError(f"travel input must be (N, {self.config.travel_size}) for "
-                             f"N = {len(inputs)} frames (travel_gap {self.config.travel_gap}), "
-                             f"got {travel.shape}")
+        if cues.shape != (len(inputs), self.config.cue_size):
+            raise InputError(f"per-frame cues must be (N, {self.config.cue_size}) for "
+                             f"N = {len(inputs)} frames (travel_gap {self.config.travel_gap}, "
+                             f"field_of_view {self.config.field_of_view!r}), got {cues.shape}")
         self.eval()
         device = device_of(self)
         coverage, features = [], []
         for start in range(0, len(inputs), batch):
             x = torch.from_numpy(np.ascontiguousarray(inputs[start:start + batch],
                                                       dtype=np.float32)).to(device)
-            m = torch.from_numpy(np.ascontiguousarray(travel[start:start + batch],
+            m = torch.from_numpy(np.ascontiguousarray(cues[start:start + batch],
                                                       dtype=np.float32)).to(device)
             f = self.frame.features(x, m)
             features.append(f.cpu().numpy())

@@ -51,17 +51,19 @@ def _optimise(loss: torch.Tensor, optimizer: torch.optim.Optimizer, schedule) ->
     return loss.item()
 
 
-def mirrored(depth: torch.Tensor, travel: torch.Tensor, flips: torch.Tensor
+def mirrored(depth: torch.Tensor, cues: torch.Tensor, flips: torch.Tensor, travel: bool
              ) -> tuple[torch.Tensor, torch.Tensor]:
-    """Depth (B, 1, h, w) and travel (B, 4 or 0) of the mirrored views: flips (B, 2) bool
-    mirrors left-right (image x; travel x negated) and up-down (image y; travel y negated)."""
+    """Depth (B, 1, h, w) and cues (B, cue_size) of the mirrored views: flips (B, 2) bool
+    mirrors left-right (image x; travel x negated) and up-down (image y; travel y negated).
+    `travel`: whether the cues begin with the travel columns (x, y, z, speed); the field of
+    view is unchanged by a mirror."""
     depth = torch.where(flips[:, 0, None, None, None], depth.flip(-1), depth)
     depth = torch.where(flips[:, 1, None, None, None], depth.flip(-2), depth)
-    if travel.shape[1]:  # columns x, y, z, speed
-        signs = torch.ones_like(travel)
-        signs[:, :2] = 1.0 - 2.0 * flips.to(travel.dtype)
-        travel = travel * signs
-    return depth, travel
+    if travel:
+        signs = torch.ones_like(cues)
+        signs[:, :2] = 1.0 - 2.0 * flips.to(cues.dtype)
+        cues = cues * signs
+    return depth, cues
 
 
 def train_frame_net(model: CoverageModel, samples: list[ProcedureSamples], log,
@@ -73,13 +75,14 @@ def train_frame_net(model: CoverageModel, samples: list[ProcedureSamples], log,
     """
     config, device = model.config, device_of(model)
     inputs = np.concatenate([s.inputs for s in samples])
-    travel = np.concatenate([s.travel for s in samples])
-    if travel.shape[1] != config.travel_size:
-        raise InputError(f"the samples carry {travel.shape[1]} travel values per frame, the "
-                         f"model takes {config.travel_size} (travel_gap {config.travel_gap})")
+    cues = np.concatenate([s.cues for s in samples])
+    if cues.shape[1] != config.cue_size:
+        raise InputError(f"the samples carry {cues.shape[1]} cues per frame, the model takes "
+                         f"{config.cue_size} (travel_gap {config.travel_gap}, field_of_view "
+                         f"{config.field_of_view!r})")
     labels = np.concatenate([s.frame_labels for s in samples])
     keep = np.isfinite(labels).any(axis=1)
-    inputs, travel, labels = inputs[keep], travel[keep], labels[keep]
+    inputs, cues, labels = inputs[keep], cues[keep], labels[keep]
     steps_per_epoch = max(1, len(inputs) // config.frame_batch)
     total = steps_per_epoch * config.frame_epochs
     optimizer = torch.optim.AdamW(model.frame.parameters(), config.frame_lr,
@@ -93,8 +96,9 @@ def train_frame_net(model: CoverageModel, samples: list[ProcedureSamples], log,
             order = rng.permutation(len(inputs))
         ids = np.sort(order[(step % steps_per_epoch) * config.frame_batch:][:config.frame_batch])
         x, m = mirrored(torch.from_numpy(inputs[ids].astype(np.float32)).to(device),
-                        torch.from_numpy(travel[ids]).to(device),
-                        torch.from_numpy(rng.random((len(ids), 2)) < 0.5).to(device))
+                        torch.from_numpy(cues[ids]).to(device),
+                        torch.from_numpy(rng.random((len(ids), 2)) < 0.5).to(device),
+                        config.travel_size > 0)
         y = torch.from_numpy(labels[ids]).to(device)
         ok = torch.isfinite(y)
         running.append(_optimise((model.frame(x, m)[ok] - y[ok]).square().mean(), optimizer,
@@ -168,14 +172,14 @@ def fit_model(samples: list[ProcedureSamples], config: CoverageConfig, log,
     torch.manual_seed(config.seed)
     model = CoverageModel(config).to(device)
     train_frame_net(model, samples, log, progress)
-    features = [model.frame_outputs(s.inputs, s.travel)[1] for s in samples]
+    features = [model.frame_outputs(s.inputs, s.cues)[1] for s in samples]
     train_segment_net(model, samples, features, log, progress)
     return model
 
 
 def predict(model: CoverageModel, samples: ProcedureSamples) -> tuple[np.ndarray, np.ndarray]:
     """Per-frame coverage (N, 3) and coverage of the procedure's back-to-back segments (S,)."""
-    frame, features = model.frame_outputs(samples.inputs, samples.travel)
+    frame, features = model.frame_outputs(samples.inputs, samples.cues)
     return frame, model.segment_outputs(features, samples.segment_starts.tolist())
 
 
@@ -196,7 +200,8 @@ def load_samples(data: list[Path], config: CoverageConfig, depth_checkpoint: Pat
     `device`)."""
     paths = expand_inputs(data)
     depth_model = None
-    if config.input_depth == "predicted" or config.travel_gap:
+    if config.input_depth == "predicted" or config.travel_gap or \
+            config.field_of_view == "predicted":
         depth_model = load_depth_model(depth_checkpoint, device=device)
     tag = file_tag(depth_checkpoint)
     return [procedure_samples(p, config, depth_model, tag, progress)

@@ -14,11 +14,13 @@ from test_learned_cli import assert_clean_error, runner, save_model
 from torch import nn
 
 from hybrid.cli import app
+from hybrid.dataset import Procedure
+from hybrid.pipeline import Models, RunConfig
 from hybrid.types import InputError
 from learned.checkpoint import save_checkpoint
 from learned.config import COVERAGE_PRESETS, coverage_config, parse_overrides
 from learned.coral import adapt, coral_transform, set_source
-from learned.coverage_data import ProcedureSamples
+from learned.coverage_data import ProcedureSamples, procedure_samples
 from learned.coverage_nets import (
     CoverageModel,
     SegmentNet,
@@ -28,7 +30,10 @@ from learned.coverage_nets import (
     resample_features,
 )
 from learned.coverage_train import fold_split, mirrored, train_frame_net, train_segment_net
+from learned.frames import open_sequence
+from learned.infer import infer_sequence
 from learned.model import DepthModel
+from learned.view import view_values
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 
@@ -57,6 +62,7 @@ def toy_samples(count: int = 3, frames: int = 60, seed: int = 0) -> list[Procedu
         starts = np.arange(0, frames - SMALL.segment_frames + 1, SMALL.segment_stride)
         window = np.array([labels[s:s + SMALL.segment_frames, 0].mean() for s in starts])
         out.append(ProcedureSamples(f"toy/{k}", inputs.astype(np.float16), travel,
+                                    np.zeros((frames, 0), np.float32),
                                     labels.astype(np.float32), starts, window, starts[:1],
                                     window[:1]))
     return out
@@ -72,14 +78,14 @@ def toy_travel(frames: int, rng: np.random.Generator) -> np.ndarray:
 
 
 def frame_loss(model: CoverageModel, samples: list[ProcedureSamples]) -> float:
-    pred = np.concatenate([model.frame_outputs(s.inputs, s.travel)[0] for s in samples])
+    pred = np.concatenate([model.frame_outputs(s.inputs, s.cues)[0] for s in samples])
     return float(np.mean((pred - np.concatenate([s.frame_labels for s in samples])) ** 2))
 
 
 def segment_loss(model: CoverageModel, samples: list[ProcedureSamples]) -> float:
     errors = []
     for s in samples:
-        features = model.frame_outputs(s.inputs, s.travel)[1]
+        features = model.frame_outputs(s.inputs, s.cues)[1]
         errors += list(model.segment_outputs(features, s.window_starts.tolist())
                        - s.window_labels)
     return float(np.mean(np.square(errors)))
@@ -159,7 +165,7 @@ def test_per_frame_net_learns_from_the_travel_what_depth_cannot_tell():
         model = CoverageModel(replace(SMALL, travel_gap=gap))
         given = [replace(s, travel=s.travel[:, :model.config.travel_size]) for s in samples]
         train_frame_net(model, given, lambda e: None)
-        pred = np.concatenate([model.frame_outputs(s.inputs, s.travel)[0][:, 0] for s in given])
+        pred = np.concatenate([model.frame_outputs(s.inputs, s.cues)[0][:, 0] for s in given])
         means[gap] = pred[forward].mean(), pred[~forward].mean()
     (fwd, back), (fwd_depth_only, back_depth_only) = means[8], means[0]
     # With the travel, the forward frames fall towards their label 0 and apart from the rest.
@@ -167,17 +173,50 @@ def test_per_frame_net_learns_from_the_travel_what_depth_cannot_tell():
     assert back - fwd > 2 * (back_depth_only - fwd_depth_only)
 
 
+def test_per_frame_net_learns_from_the_field_of_view_what_depth_cannot_tell():
+    """The toy labels of each procedure are scaled by its camera's width: only the
+    field-of-view input tells the procedures apart."""
+    samples = toy_samples(count=4, seed=5)
+    widths = np.log(np.tan(np.radians([45.0, 55.0, 60.0, 65.0])))  # 90-130 degree cameras
+    scaled = []
+    for s, w in zip(samples, widths, strict=True):
+        view = np.tile(np.float32([w, w - 0.2]), (len(s.inputs), 1))
+        scaled.append(replace(s, view=view, frame_labels=s.frame_labels * (0.5 + 0.6 * w)))
+    errors = {}
+    for field_of_view in ("true", "none"):
+        torch.manual_seed(0)
+        model = CoverageModel(replace(SMALL, field_of_view=field_of_view))
+        given = [replace(s, view=s.view[:, :model.config.cue_size - model.config.travel_size])
+                 for s in scaled]
+        train_frame_net(model, given, lambda e: None)
+        errors[field_of_view] = frame_loss(model, given)
+    assert errors["true"] < 0.5 * errors["none"], errors
+
+
+def test_field_of_view_values_are_log_tangents_of_the_half_angles():
+    K = np.array([[80.0, 0, 79.5], [0, 32.0, 63.5], [0, 0, 1]])  # 160 x 128: 90 deg across
+    values = view_values(K, 160, 128, frames=3)
+    assert values.shape == (3, 2) and values.dtype == np.float32
+    assert values[0] == pytest.approx([0.0, np.log(2.0)])
+    # The same camera at another resolution gives the same values.
+    assert view_values(K * [[0.5], [0.5], [1]], 80, 64, 1)[0] == pytest.approx(values[0])
+    with pytest.raises(InputError, match="positive focal lengths"):
+        view_values(np.diag([0.0, 32.0, 1.0]), 160, 128, 1, name="intrinsics.json")
+
+
 def test_mirroring_negates_the_travel_along_the_flipped_axis():
     depth = torch.arange(6.0).reshape(1, 1, 2, 3).repeat(3, 1, 1, 1)
-    travel = torch.tensor([[0.6, 0.3, -0.7, 0.3]]).repeat(3, 1)
+    cues = torch.tensor([[0.6, 0.3, -0.7, 0.3, 0.2, 0.1]]).repeat(3, 1)  # travel, then view
     flips = torch.tensor([[True, False], [False, True], [False, False]])
-    x, m = mirrored(depth, travel, flips)
+    x, m = mirrored(depth, cues, flips, travel=True)
     assert torch.equal(x[0, 0], depth[0, 0].flip(-1)) and torch.equal(x[1, 0], depth[1, 0].flip(-2))
     assert torch.equal(x[2], depth[2])
-    assert m[0].tolist() == pytest.approx([-0.6, 0.3, -0.7, 0.3])
-    assert m[1].tolist() == pytest.approx([0.6, -0.3, -0.7, 0.3])
-    assert torch.equal(m[2], travel[2])
-    assert mirrored(depth, torch.zeros(3, 0), flips)[1].shape == (3, 0)
+    assert m[0].tolist() == pytest.approx([-0.6, 0.3, -0.7, 0.3, 0.2, 0.1])
+    assert m[1].tolist() == pytest.approx([0.6, -0.3, -0.7, 0.3, 0.2, 0.1])
+    assert torch.equal(m[2], cues[2])
+    # Without travel columns the field of view is left as it is.
+    assert torch.equal(mirrored(depth, cues[:, 4:], flips, travel=False)[1], cues[:, 4:])
+    assert mirrored(depth, torch.zeros(3, 0), flips, travel=False)[1].shape == (3, 0)
 
 
 def test_training_reduces_both_losses_on_a_tiny_set():
@@ -189,7 +228,7 @@ def test_training_reduces_both_losses_on_a_tiny_set():
     train_frame_net(model, samples, log.append)
     after = frame_loss(model, samples)
     assert after < 0.5 * before, (before, after)
-    features = [model.frame_outputs(s.inputs, s.travel)[1] for s in samples]
+    features = [model.frame_outputs(s.inputs, s.cues)[1] for s in samples]
     seg_before = segment_loss(model, samples)
     train_segment_net(model, samples, features, log.append)
     seg_after = segment_loss(model, samples)
@@ -280,7 +319,7 @@ def test_features_of_the_wrong_size_are_an_input_error():
         model.segment_outputs(np.zeros((40, 2048), np.float32), [0])
     with pytest.raises(InputError, match="normalised depth"):
         model.frame_outputs(np.zeros((2, 1, 64, 80), np.float32), np.zeros((2, 4), np.float32))
-    with pytest.raises(InputError, match=r"travel input must be \(N, 4\)"):
+    with pytest.raises(InputError, match=r"cues must be \(N, 4\)"):
         model.frame_outputs(np.zeros((2, 1, 16, 20), np.float32), np.zeros((2, 0), np.float32))
 
 
@@ -295,11 +334,20 @@ def test_a_model_of_another_preset_is_an_input_error(tmp_path):
         load_coverage_model(depth)
 
 
+def test_a_run_refuses_networks_that_read_the_true_field_of_view(tmp_path):
+    path = tmp_path / "true-view.safetensors"
+    CoverageModel(replace(SMALL, field_of_view="true")).save(path)
+    with pytest.raises(InputError, match="true field of view"):
+        Models.load(RunConfig(coverage_checkpoint=str(path)))
+
+
 def test_coverage_config_overrides():
     assert parse_overrides(["input_depth=true", "frame_epochs=2"], COVERAGE_PRESETS["fast"]) \
         == {"input_depth": "true", "frame_epochs": 2}
     with pytest.raises(ValueError, match="input_depth"):
         coverage_config("fast", input_depth="lidar")
+    with pytest.raises(ValueError, match="field_of_view"):
+        coverage_config("fast", field_of_view="wide")
     with pytest.raises(ValueError, match="unknown preset"):
         coverage_config("huge")
 
@@ -366,6 +414,31 @@ def test_train_eval_and_adapt_commands(tmp_path, two_procedures):
     assert result.exit_code == 0, result.output
     assert "source statistics from 5 held-out windows" in result.output  # (40 - 20) / 5 + 1
     assert not torch.allclose(load_coverage_model(adapted).segment.source_mean, trained_source)
+
+
+def test_field_of_view_inputs_of_a_simulated_procedure(tmp_path, two_procedures):
+    """'true': the simulator's camera; 'predicted': the median K of the motion network's pairs,
+    cached beside the procedure's other inputs."""
+    torch.manual_seed(0)
+    depth_model = DepthModel(TINY).eval()
+    path = two_procedures / "proc_0000"
+    config = replace(SMALL, field_of_view="true")
+    true = procedure_samples(path, config, depth_model, "tiny")
+    camera = Procedure.open(path).camera
+    assert true.cues.shape == (len(true.inputs), 6)
+    assert true.view[0] == pytest.approx([np.log(camera.width / 2 / camera.fx),
+                                          np.log(camera.height / 2 / camera.fy)])
+    predicted = procedure_samples(path, replace(config, field_of_view="predicted"), depth_model,
+                                  "tiny")
+    seq = open_sequence(path, (TINY.height, TINY.width))
+    K = np.median(infer_sequence(depth_model, seq, (SMALL.travel_gap,), depth=False).K_pairs, 0)
+    assert predicted.view[0] == pytest.approx(view_values(K, TINY.width, TINY.height, 1)[0],
+                                              abs=1e-5)
+    assert (predicted.view == predicted.view[0]).all()
+    assert (path / "cache" / f"view-tiny-{SMALL.travel_gap}.npy").is_file()
+    # Read back from the caches, without the depth model.
+    again = procedure_samples(path, replace(config, field_of_view="predicted"), None, "tiny")
+    assert np.array_equal(again.view, predicted.view)
 
 
 def test_eval_coverage_with_a_depth_checkpoint_as_model(tmp_path, two_procedures):
