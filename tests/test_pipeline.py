@@ -27,7 +27,7 @@ from hybrid.cli import app
 from hybrid.crosscheck import cross_check
 from hybrid.dataset import Procedure
 from hybrid.ingest import Ingested
-from hybrid.pipeline import RunConfig, run_video
+from hybrid.pipeline import Models, RunConfig, run_video, video_features
 from hybrid.sim.simulate import SimConfig, simulate_procedure, with_overrides
 
 pytestmark = pytest.mark.usefixtures("one_thread")
@@ -241,6 +241,41 @@ def test_learned_stage_computes_a_travel_gap_its_depth_stage_lacks(pipeline_run,
     run_video(procedure.path, work, RunConfig(), progress=False, echo=lambda _: None)
     learned = json.loads((work / W.LEARNED).read_text())
     assert learned == json.loads((out / W.LEARNED).read_text())
+
+
+def test_networks_reading_the_field_of_view_get_that_of_the_network_intrinsics(procedure,
+                                                                                tmp_path):
+    """Coverage networks trained with field_of_view='predicted' (untrained here) read each
+    frame's travel and then the field of view of the run's intrinsics.json."""
+    from learned.checkpoint import file_tag
+    from learned.checkpoints import SHIPPED_DEPTH
+    from learned.config import COVERAGE_PRESETS
+    from learned.coverage_nets import CoverageModel, normalise_depth
+    from learned.model import load_depth_model
+    from learned.travel import travel_features
+    from learned.view import view_values
+
+    torch.manual_seed(0)
+    coverage = CoverageModel(replace(COVERAGE_PRESETS["fast"], field_of_view="predicted"))
+    models = Models(load_depth_model(SHIPPED_DEPTH), coverage,
+                    {"depth": file_tag(SHIPPED_DEPTH), "coverage": "untrained"})
+    with _OneThread():
+        features, _ = video_features(procedure.path, tmp_path / "work", RunConfig(), models,
+                                     progress=False)
+    work = tmp_path / "work"
+    depth = np.load(work / W.DEPTH).astype(np.float32)
+    network = json.loads((work / W.INTRINSICS).read_text())["network"]
+    K = np.array([[network["fx"], 0, network["cx"]], [0, network["fy"], network["cy"]],
+                  [0, 0, 1]])
+    with np.load(work / W.RELATIVE) as data:
+        travel = travel_features(data["gap3"], len(depth))  # 8 frames at 30 fps: 3 at 10 fps
+    view = view_values(K, depth.shape[2], depth.shape[1], len(depth))
+    region = cv2.imread(str(work / W.REGION), cv2.IMREAD_GRAYSCALE) > 0
+    inputs = normalise_depth(depth, region, (coverage.config.height, coverage.config.width))
+    expected = coverage.frame_outputs(inputs, np.concatenate([travel, view], axis=1))[1]
+    np.testing.assert_allclose(features, expected, atol=1e-5)
+    blind = coverage.frame_outputs(inputs, np.concatenate([travel, 0 * view], axis=1))[1]
+    assert np.abs(features - blind).max() > 1e-3  # the view is read
 
 
 # --- resuming a work directory ---------------------------------------------------------------
