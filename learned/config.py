@@ -248,6 +248,10 @@ class CoverageConfig:
     """Stage 2 Adam learning rate (cosine-annealed)."""
     weight_decay: float = 1e-4
     """AdamW weight decay of both stages."""
+    depth_power: float = 0.0
+    """Stage 1 augmentation: each training depth map is raised to a random power exp(u), u
+    uniform in ±depth_power (0: off), as if its depth were compressed or stretched; on the
+    normalised input that multiplies log(depth / median) by exp(u)."""
     folds: int = 5
     """Cross-validation folds, split by procedure (0 or 1: no cross-validation)."""
     seed: int = 0
@@ -259,6 +263,8 @@ class CoverageConfig:
                              f"{self.travel_gap}")
         if not self.frame_rate > 0:
             raise ValueError(f"frame_rate must be positive, got {self.frame_rate}")
+        if self.depth_power < 0:
+            raise ValueError(f"depth_power must be >= 0 (0: off), got {self.depth_power}")
         if self.field_of_view not in ("none", "predicted", "true"):
             raise ValueError(f"field_of_view must be 'none', 'predicted' or 'true', got "
                              f"{self.field_of_view!r}")

@@ -66,12 +66,20 @@ def mirrored(depth: torch.Tensor, cues: torch.Tensor, flips: torch.Tensor, trave
     return depth, cues
 
 
+def powered(depth: torch.Tensor, powers: torch.Tensor) -> torch.Tensor:
+    """Normalised depth (B, 1, h, w) of the maps raised to powers (B,): log(d^p / median^p) is
+    p log(d / median)."""
+    return depth * powers[:, None, None, None]
+
+
 def train_frame_net(model: CoverageModel, samples: list[ProcedureSamples], log,
                     progress: bool = False) -> None:
     """Stage 1: L2 loss on the per-frame coverage of the three Δ pairs (undefined ones masked).
 
     Depth maps are flipped left-right and up-down at random, the travel direction's x and y
-    with them: a mirrored colon is covered alike.
+    with them: a mirrored colon is covered alike. With `depth_power`, each map is also raised
+    to a random power (its normalised input scaled), as the depth network's maps are
+    compressed or stretched.
     """
     config, device = model.config, device_of(model)
     inputs = np.concatenate([s.inputs for s in samples])
@@ -99,6 +107,9 @@ def train_frame_net(model: CoverageModel, samples: list[ProcedureSamples], log,
                         torch.from_numpy(cues[ids]).to(device),
                         torch.from_numpy(rng.random((len(ids), 2)) < 0.5).to(device),
                         config.travel_size > 0)
+        if config.depth_power:
+            u = rng.uniform(-config.depth_power, config.depth_power, len(ids))
+            x = powered(x, torch.from_numpy(np.exp(u).astype(np.float32)).to(device))
         y = torch.from_numpy(labels[ids]).to(device)
         ok = torch.isfinite(y)
         running.append(_optimise((model.frame(x, m)[ok] - y[ok]).square().mean(), optimizer,

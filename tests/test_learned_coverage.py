@@ -29,7 +29,13 @@ from learned.coverage_nets import (
     normalise_depth,
     resample_features,
 )
-from learned.coverage_train import fold_split, mirrored, train_frame_net, train_segment_net
+from learned.coverage_train import (
+    fold_split,
+    mirrored,
+    powered,
+    train_frame_net,
+    train_segment_net,
+)
 from learned.frames import open_sequence
 from learned.infer import infer_sequence
 from learned.model import DepthModel
@@ -141,6 +147,19 @@ def test_normalised_input_is_log_depth_over_its_median():
     assert np.allclose(out[0, 0, 4, 5:], np.log(8.0 / median))
     # Scale invariance: depth known up to scale gives the same input.
     assert np.allclose(normalise_depth(depth * 7.5, region, (8, 10)), out, atol=1e-6)
+
+
+def test_powered_input_is_that_of_the_depth_raised_to_the_power():
+    rng = np.random.default_rng(0)
+    depth = rng.uniform(0.5, 6.0, (2, 9, 11)).astype(np.float32)  # 99 pixels: an odd median
+    region = np.ones((9, 11), bool)
+    powers = np.array([0.8, 1.25], np.float32)
+    raised = normalise_depth(depth ** powers[:, None, None], region, (9, 11))
+    scaled = powered(torch.from_numpy(normalise_depth(depth, region, (9, 11))),
+                     torch.from_numpy(powers))
+    np.testing.assert_allclose(scaled.numpy(), raised, atol=1e-5)
+    with pytest.raises(ValueError, match="depth_power"):
+        coverage_config("fast", depth_power=-0.1)
 
 
 def test_normalised_input_rejects_nan_depth():
