@@ -1,13 +1,13 @@
 """Per-procedure error of a coverage model against its camera's field of view.
 
-Each simulated procedure has its own camera (horizontal field of view 90-130 degrees). The
-per-frame network sees a depth image, not the field of view, so a camera wider than it
-assumes sees more of the wall than it predicts. Prints, per procedure (sorted by field of
-view), the per-frame bias and MAE for the default (1, 4) cm pair, the per-segment bias, and
-how often the sign of the travel input's z (moving along the view or against it) agrees with
-the true motion's, and, for a model that reads the field of view of the motion network's
-intrinsics, that field of view; then the correlations of field of view with the per-frame
-bias and with the network's.
+Each simulated procedure has its own camera (horizontal field of view 90-130 degrees). Unless
+trained with `field_of_view`, the per-frame network sees a depth image, not the field of view,
+so a camera wider than it assumes sees more of the wall than it predicts. Prints, per
+procedure (sorted by field of view), the per-frame bias and MAE for the default (1, 4) cm
+pair, the per-segment bias, how often the sign of the travel input's z (moving along the view
+or against it) agrees with the true motion's, and, for a model that reads the field of view of
+the motion network's intrinsics, that field of view; then the correlations of field of view
+with the per-frame bias and with the network's.
 
     .venv/bin/python benchmarks/coverage_by_camera.py \
         --data data/cov-pink/proc_0012 ... [--model MODEL]

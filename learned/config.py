@@ -218,9 +218,9 @@ class CoverageConfig:
     direction of travel, an input of the per-frame network besides the depth
     (learned.travel); 0: depth only, as in the paper."""
     field_of_view: str = "none"
-    """Camera input of the per-frame network besides the depth: 'predicted' (from the motion
-    network's intrinsics, as at inference), 'true' (the simulator's camera, an ablation) or
-    'none' (learned.view)."""
+    """Camera input of the per-frame network besides the depth: 'predicted' (the median
+    intrinsics of the motion network's consecutive pairs, as `c2d2 run` has them), 'true' (the
+    simulator's camera, an ablation) or 'none' (learned.view)."""
     frame_rate: float = 30.0
     """Frame rate of the training videos: a segment of segment_frames lasts
     segment_frames / frame_rate seconds; other videos' travel gap is scaled by time."""

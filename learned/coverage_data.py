@@ -82,14 +82,15 @@ def procedure_samples(path: Path, config: CoverageConfig, depth_model: DepthMode
     predicted = config.input_depth != "true"
     inputs_path = cache / f"input-{depth_tag if predicted else 'true'}-{size}.npy"
     relative_path = cache / f"relative-{depth_tag}-{config.travel_gap}.npy"
-    pair_gap = config.travel_gap or 1  # the pairs whose median K gives the predicted view
-    view_path = cache / f"view-{depth_tag}-{pair_gap}.npy"
-    # One pass of the depth model for whichever of its caches are missing.
+    view_path = cache / f"view-{depth_tag}.npy"
+    # One pass of the depth model for whichever of its caches are missing: the travel's pairs,
+    # and consecutive pairs for the view (their median K, as `c2d2 run`'s intrinsics.json).
     missing_depth = predicted and not inputs_path.is_file()
-    missing_pairs = ((config.travel_gap and not relative_path.is_file())
-                     or (config.field_of_view == "predicted" and not view_path.is_file()))
-    network = functools.cache(lambda: _network_outputs(
-        proc, depth_model, missing_depth, pair_gap if missing_pairs else 0, progress))
+    gaps = {config.travel_gap} if config.travel_gap and not relative_path.is_file() else set()
+    if config.field_of_view == "predicted" and not view_path.is_file():
+        gaps.add(1)
+    network = functools.cache(lambda: _network_outputs(proc, depth_model, missing_depth,
+                                                       tuple(gaps), progress))
     inputs = _cached(inputs_path, lambda: _predicted_inputs(*network(), config) if predicted
                      else _true_inputs(proc, config))
     if config.travel_gap:
@@ -130,16 +131,16 @@ def _true_inputs(proc: Procedure, config: CoverageConfig) -> np.ndarray:
                            by_median=config.median_normalise).astype(np.float16)
 
 
-def _network_outputs(proc: Procedure, depth_model: DepthModel | None, depth: bool, gap: int,
-                     progress: bool) -> tuple[FrameSequence, DepthOutput]:
+def _network_outputs(proc: Procedure, depth_model: DepthModel | None, depth: bool,
+                     gaps: tuple[int, ...], progress: bool) -> tuple[FrameSequence, DepthOutput]:
     """The procedure's frames and, in one pass, the depth model's depth (if `depth`) and
-    relative poses and intrinsics of the frame pairs (t, t + gap) (if `gap`)."""
+    relative poses of the frame pairs (t, t + g) for each gap g, with the intrinsics of the
+    smallest gap's pairs."""
     if depth_model is None:
         raise InputError("predicted-depth inputs and the travel and predicted field-of-view "
                          "inputs need a depth model")
     seq = open_sequence(proc.path, (depth_model.config.height, depth_model.config.width))
-    return seq, infer_sequence(depth_model, seq, (gap,) if gap else (), depth=depth,
-                               progress=progress)
+    return seq, infer_sequence(depth_model, seq, gaps, depth=depth, progress=progress)
 
 
 def _predicted_inputs(seq: FrameSequence, output: DepthOutput, config: CoverageConfig

@@ -436,8 +436,8 @@ def test_train_eval_and_adapt_commands(tmp_path, two_procedures):
 
 
 def test_field_of_view_inputs_of_a_simulated_procedure(tmp_path, two_procedures):
-    """'true': the simulator's camera; 'predicted': the median K of the motion network's pairs,
-    cached beside the procedure's other inputs."""
+    """'true': the simulator's camera; 'predicted': the median K of the motion network's
+    consecutive pairs (as `c2d2 run` takes it), cached beside the procedure's other inputs."""
     torch.manual_seed(0)
     depth_model = DepthModel(TINY).eval()
     path = two_procedures / "proc_0000"
@@ -450,11 +450,11 @@ def test_field_of_view_inputs_of_a_simulated_procedure(tmp_path, two_procedures)
     predicted = procedure_samples(path, replace(config, field_of_view="predicted"), depth_model,
                                   "tiny")
     seq = open_sequence(path, (TINY.height, TINY.width))
-    K = np.median(infer_sequence(depth_model, seq, (SMALL.travel_gap,), depth=False).K_pairs, 0)
+    K = np.median(infer_sequence(depth_model, seq, (1,), depth=False).K_pairs, 0)  # as a run
     assert predicted.view[0] == pytest.approx(view_values(K, TINY.width, TINY.height, 1)[0],
                                               abs=1e-5)
     assert (predicted.view == predicted.view[0]).all()
-    assert (path / "cache" / f"view-tiny-{SMALL.travel_gap}.npy").is_file()
+    assert (path / "cache" / "view-tiny.npy").is_file()
     # Read back from the caches, without the depth model.
     again = procedure_samples(path, replace(config, field_of_view="predicted"), None, "tiny")
     assert np.array_equal(again.view, predicted.view)
