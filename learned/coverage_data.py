@@ -98,16 +98,14 @@ def procedure_samples(path: Path, config: CoverageConfig, depth_model: DepthMode
         travel = travel_features(relative, len(inputs), name=str(proc.path))
     else:
         travel = no_travel(len(inputs))
-    if config.field_of_view == "predicted":
-        view = _cached(view_path, lambda: view_values(
-            np.median(network()[1].K_pairs, axis=0), network()[0].size[1],
-            network()[0].size[0], 1, str(proc.path))[0])
-        view = np.tile(view, (len(inputs), 1))
-    elif config.field_of_view == "true":
-        camera = proc.camera
-        view = view_values(camera.K, camera.width, camera.height, len(inputs), str(proc.path))
-    else:
+    if config.field_of_view == "none":
         view = np.zeros((len(inputs), 0), dtype=np.float32)
+    else:
+        camera = proc.camera
+        values = (_cached(view_path, lambda: _predicted_view(*network()))
+                  if config.field_of_view == "predicted"
+                  else view_values(camera.K, camera.width, camera.height, 1, str(proc.path))[0])
+        view = np.tile(values, (len(inputs), 1))
     windows = _cached(cache / f"windows-{T}-{stride}.npy",
                       lambda: _window_labels(proc, T, stride, progress))
     labels = np.array([[np.nan if v is None else v for v in truth.per_frame[pair_key(p)]]
@@ -148,6 +146,12 @@ def _predicted_inputs(seq: FrameSequence, output: DepthOutput, config: CoverageC
     """Normalised inputs (N, 1, h, w) float16 from the depth model's depth."""
     return normalise_depth(output.depth, seq.region, (config.height, config.width),
                            name=seq.name, by_median=config.median_normalise).astype(np.float16)
+
+
+def _predicted_view(seq: FrameSequence, output: DepthOutput) -> np.ndarray:
+    """(2,) field-of-view values of the median K of the depth model's pairs."""
+    return view_values(np.median(output.K_pairs, axis=0), seq.size[1], seq.size[0], 1,
+                       seq.name)[0]
 
 
 def _window_labels(proc: Procedure, frames: int, stride: int, progress: bool) -> np.ndarray:
