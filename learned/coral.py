@@ -49,30 +49,35 @@ def coral_transform(source_mean: np.ndarray, source_cov: np.ndarray, target: np.
 
 def window_embeddings(model: CoverageModel, features: list[np.ndarray], stride: int,
                       role: str = "target") -> np.ndarray:
-    """The pooled layer (n, C) of windows every `stride` frames of each video's features."""
+    """The pooled layer (n, len(MIRRORS), C) of the n windows every `stride` frames of each
+    video's features, in each mirror view; at least 2 windows."""
     T = model.config.segment_frames
     starts = [list(range(0, len(f) - T + 1, stride)) for f in features]
     if not any(starts):
         longest = max((len(f) for f in features), default=0)
         raise InputError(f"CORAL needs {role} videos of at least {T} frames (one segment); "
                          f"the longest has {longest}")
-    return np.concatenate([model.segment_embeddings(f, ss).double().cpu().numpy()
-                           for f, ss in zip(features, starts, strict=True) if ss])
+    embedded = np.concatenate([model.segment_embeddings(f, ss).double().cpu().numpy()
+                               for f, ss in zip(features, starts, strict=True) if ss])
+    if len(embedded) < 2:
+        raise InputError(f"CORAL needs at least 2 {role} segments, got {len(embedded)}; give "
+                         f"more or longer videos")
+    return embedded
 
 
 def set_source(model: CoverageModel, source_features: list[np.ndarray], stride: int) -> int:
     """Replace CORAL's source statistics (by default the training windows') by those of
     windows of synthetic videos the model was not trained on; returns their number."""
     embedded = window_embeddings(model, source_features, stride, role="source")
-    if len(embedded) < 2:
-        raise InputError(f"CORAL needs at least 2 source segments, got {len(embedded)}")
-    model.segment.source_mean.copy_(torch.from_numpy(embedded.mean(0)).float())
-    model.segment.source_cov.copy_(torch.from_numpy(np.cov(embedded, rowvar=False)).float())
+    rows = embedded.reshape(-1, embedded.shape[-1])
+    model.segment.source_mean.copy_(torch.from_numpy(rows.mean(0)).float())
+    model.segment.source_cov.copy_(torch.from_numpy(np.cov(rows, rowvar=False)).float())
     return len(embedded)
 
 
 def adapt(model: CoverageModel, target_features: list[np.ndarray], stride: int) -> int:
-    """Fit the model's CORAL transform on windows of unlabelled videos' per-frame features.
+    """Fit the model's CORAL transform on windows of unlabelled videos' per-frame features
+    (every mirror view of each window a sample).
 
     Returns the number of target windows used. Windows start every `stride` frames.
     """
@@ -80,7 +85,7 @@ def adapt(model: CoverageModel, target_features: list[np.ndarray], stride: int) 
     net = model.segment
     A, b = coral_transform(net.source_mean.double().cpu().numpy(),
                            net.source_cov.double().cpu().numpy(),
-                           embedded)
+                           embedded.reshape(-1, embedded.shape[-1]))
     net.coral_matrix.copy_(torch.from_numpy(A).float())
     net.coral_offset.copy_(torch.from_numpy(b).float())
     return len(embedded)

@@ -8,6 +8,10 @@ Stage 2, `SegmentNet`: the T x F features of a segment -> six 1-D convolutions -
 time -> an affine CORAL transform (identity until adapted) -> a fully connected layer -> one
 coverage in [0, 1].
 
+A mirrored colon is covered alike, so `CoverageModel` predicts from the four mirror views of
+each frame (`MIRRORS`): per-frame coverage is their mean, the features keep all four
+((N, 4, F)), and a segment's coverage is the mean over the four mirrored feature sequences.
+
 Depth is known only up to scale, so each depth map is normalised by its own median over the
 image region and passed as log(depth / median): 0 at the median depth, symmetric in near and
 far, and 0 outside the region.
@@ -52,6 +56,25 @@ def normalise_depth(depth: np.ndarray, region: np.ndarray, size: tuple[int, int]
     height, width = size
     small = [cv2.resize(d, (width, height), interpolation=cv2.INTER_AREA) for d in logs]
     return np.stack(small)[:, None].astype(np.float32)
+
+
+MIRRORS = ((False, False), (True, False), (False, True), (True, True))
+"""The mirror views of a frame: (left-right, up-down) flips."""
+
+
+def mirrored(depth: torch.Tensor, cues: torch.Tensor, flips: torch.Tensor, travel: bool
+             ) -> tuple[torch.Tensor, torch.Tensor]:
+    """Depth (B, 1, h, w) and cues (B, cue_size) of the mirrored views: flips (B, 2) bool
+    mirrors left-right (image x; travel x negated) and up-down (image y; travel y negated).
+    `travel`: whether the cues begin with the travel columns (x, y, z, speed); the field of
+    view is unchanged by a mirror."""
+    depth = torch.where(flips[:, 0, None, None, None], depth.flip(-1), depth)
+    depth = torch.where(flips[:, 1, None, None, None], depth.flip(-2), depth)
+    if travel:
+        signs = torch.ones_like(cues)
+        signs[:, :2] = 1.0 - 2.0 * flips.to(cues.dtype)
+        cues = cues * signs
+    return depth, cues
 
 
 def resample_features(features: np.ndarray, segment_frames: int, window: int) -> np.ndarray:
@@ -138,8 +161,8 @@ class CoverageModel(nn.Module):
     @torch.no_grad()
     def frame_outputs(self, inputs: np.ndarray, cues: np.ndarray, batch: int = 256
                       ) -> tuple[np.ndarray, np.ndarray]:
-        """(N, 1, h, w) normalised depth and (N, cue_size) cues -> per-frame coverage (N, 3)
-        and features (N, F)."""
+        """(N, 1, h, w) normalised depth and (N, cue_size) cues -> per-frame coverage (N, 3),
+        the mean over the mirror views, and the features (N, len(MIRRORS), F) of each view."""
         expected = (1, self.config.height, self.config.width)
         if inputs.ndim != 4 or inputs.shape[1:] != expected:
             raise InputError(f"per-frame input must be (N, {expected}) normalised depth for the "
@@ -150,42 +173,52 @@ class CoverageModel(nn.Module):
                              f"field_of_view {self.config.field_of_view!r}), got {cues.shape}")
         self.eval()
         device = device_of(self)
+        flips = torch.tensor(MIRRORS, device=device)
         coverage, features = [], []
         for start in range(0, len(inputs), batch):
             x = torch.from_numpy(np.ascontiguousarray(inputs[start:start + batch],
                                                       dtype=np.float32)).to(device)
             m = torch.from_numpy(np.ascontiguousarray(cues[start:start + batch],
                                                       dtype=np.float32)).to(device)
-            f = self.frame.features(x, m)
+            views = [mirrored(x, m, flip.expand(len(x), 2), self.config.travel_size > 0)
+                     for flip in flips]
+            f = self.frame.features(torch.cat([v[0] for v in views]),
+                                    torch.cat([v[1] for v in views]))
+            f = f.view(len(flips), len(x), -1).transpose(0, 1)
             features.append(f.cpu().numpy())
-            coverage.append(torch.sigmoid(self.frame.head(f)).cpu().numpy())
+            coverage.append(torch.sigmoid(self.frame.head(f)).mean(dim=1).cpu().numpy())
         return np.concatenate(coverage), np.concatenate(features)
 
     @torch.no_grad()
     def segment_embeddings(self, features: np.ndarray, starts: list[int], batch: int = 256
                            ) -> torch.Tensor:
-        """The per-segment network's pooled layer (S, C) for the windows [s, s + T) of one
-        video's (N, F) features."""
-        T, F = self.config.segment_frames, self.config.feature_size
-        if features.ndim != 2 or features.shape[1] != F:
-            raise InputError(f"features must be (N, {F}) for the {self.config.preset!r} preset, "
-                             f"got {features.shape}")
+        """The per-segment network's pooled layer (S, len(MIRRORS), C) for the windows
+        [s, s + T) of one video's (N, len(MIRRORS), F) features, one row per mirror view."""
+        T, F, M = self.config.segment_frames, self.config.feature_size, len(MIRRORS)
+        if features.ndim != 3 or features.shape[1:] != (M, F):
+            raise InputError(f"features must be (N, {M}, {F}) (frames, mirror views, features) "
+                             f"for the {self.config.preset!r} preset, got {features.shape}")
         if len(features) < T:
             raise InputError(f"a segment needs {T} frames, but the video has {len(features)}")
         if any(s < 0 or s + T > len(features) for s in starts):
             raise InputError(f"segment windows must lie within the {len(features)} frames")
         self.eval()
-        chunks = [np.stack([features[s:s + T] for s in starts[k:k + batch]]).astype(np.float32)
-                  for k in range(0, len(starts), batch)]
         device = device_of(self)
-        return torch.cat([self.segment.embed(torch.from_numpy(c).to(device)) for c in chunks]) \
-            if chunks else torch.zeros(0, self.segment.fc.in_features, device=device)
+        embedded = [torch.zeros(0, M, self.segment.fc.in_features, device=device)]
+        for k in range(0, len(starts), batch):
+            windows = np.stack([features[s:s + T] for s in starts[k:k + batch]])  # (B, T, M, F)
+            x = torch.from_numpy(windows.transpose(0, 2, 1, 3).reshape(-1, T, F)
+                                 .astype(np.float32)).to(device)
+            embedded.append(self.segment.embed(x).view(len(windows), M, -1))
+        return torch.cat(embedded)
 
     @torch.no_grad()
     def segment_outputs(self, features: np.ndarray, starts: list[int]) -> np.ndarray:
-        """Coverage (S,) of the windows [s, s + T) of one video's (N, F) features."""
+        """Coverage (S,) of the windows [s, s + T) of one video's (N, len(MIRRORS), F)
+        features: the mean over the mirror views."""
         embedded = self.segment_embeddings(features, starts)
-        return self.segment.head(embedded).cpu().numpy().astype(np.float64)
+        return self.segment.head(embedded.flatten(0, 1)).view(len(starts), -1).mean(dim=1) \
+            .cpu().numpy().astype(np.float64)
 
     def save(self, path: Path, step: int = 0) -> None:
         save_checkpoint(path, {"frame": self.frame, "segment": self.segment},

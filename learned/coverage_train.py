@@ -23,7 +23,7 @@ from learned.checkpoint import file_tag
 from learned.config import CoverageConfig
 from learned.coverage_data import ProcedureSamples, procedure_samples
 from learned.coverage_eval import Predictions, coverage_metrics, format_table, scatter_plots
-from learned.coverage_nets import CoverageModel, load_coverage_model
+from learned.coverage_nets import MIRRORS, CoverageModel, load_coverage_model, mirrored
 from learned.device import device_of
 from learned.model import load_depth_model
 from learned.train import expand_inputs
@@ -49,21 +49,6 @@ def _optimise(loss: torch.Tensor, optimizer: torch.optim.Optimizer, schedule) ->
     optimizer.step()
     schedule.step()
     return loss.item()
-
-
-def mirrored(depth: torch.Tensor, cues: torch.Tensor, flips: torch.Tensor, travel: bool
-             ) -> tuple[torch.Tensor, torch.Tensor]:
-    """Depth (B, 1, h, w) and cues (B, cue_size) of the mirrored views: flips (B, 2) bool
-    mirrors left-right (image x; travel x negated) and up-down (image y; travel y negated).
-    `travel`: whether the cues begin with the travel columns (x, y, z, speed); the field of
-    view is unchanged by a mirror."""
-    depth = torch.where(flips[:, 0, None, None, None], depth.flip(-1), depth)
-    depth = torch.where(flips[:, 1, None, None, None], depth.flip(-2), depth)
-    if travel:
-        signs = torch.ones_like(cues)
-        signs[:, :2] = 1.0 - 2.0 * flips.to(cues.dtype)
-        cues = cues * signs
-    return depth, cues
 
 
 def powered(depth: torch.Tensor, powers: torch.Tensor) -> torch.Tensor:
@@ -125,13 +110,15 @@ def train_frame_net(model: CoverageModel, samples: list[ProcedureSamples], log,
 
 def train_segment_net(model: CoverageModel, samples: list[ProcedureSamples],
                       features: list[np.ndarray], log, progress: bool = False) -> None:
-    """Stage 2: L2 loss on the coverage of overlapping windows of frozen per-frame features.
+    """Stage 2: L2 loss on the coverage of overlapping windows of frozen per-frame features
+    ((N, len(MIRRORS), F) per procedure).
 
-    Windows are reversed in time at random (coverage does not depend on frame order). Sets the
-    feature standardisation and the CORAL source statistics from the training windows.
+    Each window is taken in one of its mirror views and reversed in time at random (coverage
+    depends on neither). Sets the feature standardisation and the CORAL source statistics from
+    the training windows (all mirror views).
     """
     config, net, device = model.config, model.segment, device_of(model)
-    every = np.concatenate(features)
+    every = np.concatenate(features).reshape(-1, config.feature_size)
     net.feature_mean.copy_(torch.from_numpy(every.mean(0)))
     net.feature_std.copy_(torch.from_numpy(every.std(0) + 1e-6))
     windows = [(k, int(start), float(label)) for k, s in enumerate(samples)
@@ -142,9 +129,11 @@ def train_segment_net(model: CoverageModel, samples: list[ProcedureSamples],
                          f"the procedures are too short")
     T = config.segment_frames
 
-    def stack(picks) -> torch.Tensor:
-        return torch.from_numpy(np.stack([features[windows[i][0]][windows[i][1]:][:T]
-                                          for i in picks]).astype(np.float32)).to(device)
+    def stack(picks, views) -> torch.Tensor:
+        """(B, T, F): window picks[b] in mirror view views[b]."""
+        return torch.from_numpy(np.stack([features[windows[i][0]][windows[i][1]:][:T, v]
+                                          for i, v in zip(picks, views, strict=True)])
+                                .astype(np.float32)).to(device)
 
     steps_per_epoch = max(1, len(windows) // config.segment_batch)
     total = steps_per_epoch * config.segment_epochs
@@ -159,7 +148,7 @@ def train_segment_net(model: CoverageModel, samples: list[ProcedureSamples],
         if step % steps_per_epoch == 0:
             order = rng.permutation(len(windows))
         picks = order[(step % steps_per_epoch) * config.segment_batch:][:config.segment_batch]
-        x = stack(picks)
+        x = stack(picks, rng.integers(len(MIRRORS), size=len(picks)))
         reverse = torch.from_numpy(rng.random(len(picks)) < 0.5).to(device)
         x = torch.where(reverse[:, None, None], x.flip(1), x)
         running.append(_optimise((net(x) - targets[picks]).square().mean(), optimizer,
@@ -170,9 +159,10 @@ def train_segment_net(model: CoverageModel, samples: list[ProcedureSamples],
             running = []
     bar.close()
     net.eval()
+    every_view = [(i, v) for i in range(len(windows)) for v in range(len(MIRRORS))]
     with torch.no_grad():
-        embedded = torch.cat([net.embed(stack(range(k, min(k + 256, len(windows)))))
-                              for k in range(0, len(windows), 256)]).double()
+        embedded = torch.cat([net.embed(stack(*zip(*every_view[k:k + 256], strict=True)))
+                              for k in range(0, len(every_view), 256)]).double()
     net.source_mean.copy_(embedded.mean(0).float())
     net.source_cov.copy_(torch.cov(embedded.T).float())
 

@@ -22,16 +22,17 @@ from learned.config import COVERAGE_PRESETS, coverage_config, parse_overrides
 from learned.coral import adapt, coral_transform, set_source
 from learned.coverage_data import ProcedureSamples, procedure_samples
 from learned.coverage_nets import (
+    MIRRORS,
     CoverageModel,
     SegmentNet,
     count_parameters,
     load_coverage_model,
+    mirrored,
     normalise_depth,
     resample_features,
 )
 from learned.coverage_train import (
     fold_split,
-    mirrored,
     powered,
     train_frame_net,
     train_segment_net,
@@ -238,6 +239,30 @@ def test_mirroring_negates_the_travel_along_the_flipped_axis():
     assert mirrored(depth, torch.zeros(3, 0), flips, travel=False)[1].shape == (3, 0)
 
 
+def test_a_mirrored_video_gets_the_same_coverage():
+    torch.manual_seed(0)
+    model = CoverageModel(SMALL)
+    rng = np.random.default_rng(0)
+    inputs = rng.normal(size=(30, 1, 16, 20)).astype(np.float32)
+    cues = toy_travel(30, rng)
+    coverage, features = model.frame_outputs(inputs, cues)
+    assert features.shape == (30, len(MIRRORS), SMALL.feature_size)
+    x, m = torch.from_numpy(inputs), torch.from_numpy(cues)
+    with torch.no_grad():  # the first view is the frame as it is; coverage is the views' mean
+        np.testing.assert_allclose(features[:, 0], model.frame.features(x, m), atol=1e-5)
+        views = [model.frame(*mirrored(x, m, torch.tensor(f).expand(30, 2), travel=True))
+                 for f in MIRRORS]
+    np.testing.assert_allclose(coverage, torch.stack(views).mean(0), atol=1e-6)
+    assert np.abs(coverage - views[0].numpy()).max() > 1e-4
+    # Mirrored left-right, each view becomes another one; the predictions stay.
+    lr = mirrored(x, m, torch.tensor([[True, False]]).expand(30, 2), travel=True)
+    coverage_lr, features_lr = model.frame_outputs(lr[0].numpy(), lr[1].numpy())
+    np.testing.assert_allclose(coverage_lr, coverage, atol=1e-6)
+    np.testing.assert_allclose(features_lr[:, [1, 0, 3, 2]], features, atol=1e-5)
+    np.testing.assert_allclose(model.segment_outputs(features_lr, [0, 10]),
+                               model.segment_outputs(features, [0, 10]), atol=1e-6)
+
+
 def test_training_reduces_both_losses_on_a_tiny_set():
     samples = toy_samples()
     torch.manual_seed(0)
@@ -296,12 +321,14 @@ def test_adapt_makes_target_features_look_like_the_source():
     rng = np.random.default_rng(1)
     F = SMALL.feature_size
     def walks() -> list[np.ndarray]:  # features drifting over time, so that windows differ
-        return [np.cumsum(rng.normal(size=(200, F)), 0).astype(np.float32) for _ in range(3)]
+        return [np.cumsum(rng.normal(size=(200, len(MIRRORS), F)), 0).astype(np.float32)
+                for _ in range(3)]
 
     source = walks()
     starts = list(range(0, 200 - SMALL.segment_frames + 1, 3))
     assert set_source(model, source, stride=3) == 3 * len(starts)
-    embedded = torch.cat([model.segment_embeddings(f, starts) for f in source]).double()
+    embedded = torch.cat([model.segment_embeddings(f, starts).flatten(0, 1)
+                          for f in source]).double()
     assert torch.allclose(model.segment.source_mean.double(), embedded.mean(0), atol=1e-5)
     assert torch.allclose(model.segment.source_cov.double(), torch.cov(embedded.T), atol=1e-4)
     # The target domain: the same kind of features, rescaled and shifted.
@@ -309,7 +336,7 @@ def test_adapt_makes_target_features_look_like_the_source():
     used = adapt(model, target, stride=3)
     assert used == 3 * len(starts)
     net = model.segment
-    z = torch.cat([model.segment_embeddings(f, starts) for f in target]).double()
+    z = torch.cat([model.segment_embeddings(f, starts).flatten(0, 1) for f in target]).double()
     moved = z @ net.coral_matrix.double().T + net.coral_offset.double()
     scale = float(net.source_cov.abs().max())
     assert scale > 1e-5  # windows differ: a real covariance to match
@@ -320,7 +347,7 @@ def test_adapt_makes_target_features_look_like_the_source():
 def test_adapt_needs_a_video_of_one_segment():
     model = CoverageModel(SMALL)
     with pytest.raises(InputError, match="at least 20 frames"):
-        adapt(model, [np.zeros((19, SMALL.feature_size), np.float32)], stride=5)
+        adapt(model, [np.zeros((19, 4, SMALL.feature_size), np.float32)], stride=5)
 
 
 # --- bad input ----------------------------------------------------------------------------
@@ -329,13 +356,15 @@ def test_adapt_needs_a_video_of_one_segment():
 def test_segment_shorter_than_the_window_is_an_input_error():
     model = CoverageModel(SMALL)
     with pytest.raises(InputError, match="needs 20 frames"):
-        model.segment_outputs(np.zeros((19, SMALL.feature_size), np.float32), [0])
+        model.segment_outputs(np.zeros((19, 4, SMALL.feature_size), np.float32), [0])
 
 
 def test_features_of_the_wrong_size_are_an_input_error():
     model = CoverageModel(SMALL)
-    with pytest.raises(InputError, match=r"\(N, 8\)"):
-        model.segment_outputs(np.zeros((40, 2048), np.float32), [0])
+    with pytest.raises(InputError, match=r"\(N, 4, 8\)"):
+        model.segment_outputs(np.zeros((40, 4, 2048), np.float32), [0])
+    with pytest.raises(InputError, match=r"\(N, 4, 8\)"):
+        model.segment_outputs(np.zeros((40, SMALL.feature_size), np.float32), [0])
     with pytest.raises(InputError, match="normalised depth"):
         model.frame_outputs(np.zeros((2, 1, 64, 80), np.float32), np.zeros((2, 4), np.float32))
     with pytest.raises(InputError, match=r"cues must be \(N, 4\)"):
