@@ -159,10 +159,11 @@ def train_segment_net(model: CoverageModel, samples: list[ProcedureSamples],
             running = []
     bar.close()
     net.eval()
-    every_view = [(i, v) for i in range(len(windows)) for v in range(len(MIRRORS))]
+    picks = np.repeat(np.arange(len(windows)), len(MIRRORS))  # every window in every view
+    views = np.tile(np.arange(len(MIRRORS)), len(windows))
     with torch.no_grad():
-        embedded = torch.cat([net.embed(stack(*zip(*every_view[k:k + 256], strict=True)))
-                              for k in range(0, len(every_view), 256)]).double()
+        embedded = torch.cat([net.embed(stack(picks[k:k + 256], views[k:k + 256]))
+                              for k in range(0, len(picks), 256)]).double()
     net.source_mean.copy_(embedded.mean(0).float())
     net.source_cov.copy_(torch.cov(embedded.T).float())
 
