@@ -1,8 +1,9 @@
 """Inference speed of the coverage networks at both presets on this CPU.
 
-Per-frame network: frames/s on batches of normalised depth (the depth network is not
-included). Per-segment network: segments/s on T x F feature windows, and the equivalent
-frames/s when a window is evaluated once per segment (T frames each). Weights are random:
+Per-frame network: frames/s on batches of normalised depth, each frame read in its four
+mirror views (the depth network is not included). Per-segment network: segments/s on
+T x 4 x F feature windows (the four mirrored sequences), and the equivalent frames/s when a
+window is evaluated once per segment (T frames each). Weights are random:
 speed does not depend on them.
 
     python benchmarks/bench_coverage.py --threads 2
@@ -18,7 +19,7 @@ import numpy as np
 import torch
 
 from learned.config import COVERAGE_PRESETS
-from learned.coverage_nets import CoverageModel, count_parameters
+from learned.coverage_nets import MIRRORS, CoverageModel, count_parameters
 
 
 def timed(fn, repeats: int) -> float:
@@ -46,7 +47,7 @@ def main() -> None:
         cues = np.zeros((batch, config.cue_size), np.float32)
         frame_s = timed(lambda d=depth, c=cues, m=model: m.frame_outputs(d, c), 3)
         features = np.random.default_rng(1).normal(
-            size=(config.segment_frames, config.feature_size)).astype(np.float32)
+            size=(config.segment_frames, len(MIRRORS), config.feature_size)).astype(np.float32)
         seg_s = timed(lambda f=features, m=model: m.segment_outputs(f, [0]), 20)
         print(f"{name:8s} {config.height:4d}x{config.width:<4d} "
               f"{count_parameters(model.frame):13,d} {batch / frame_s:9.1f} "
