@@ -244,7 +244,8 @@ class _Run:
         return np.concatenate(cues, axis=1)
 
     def frame_outputs(self) -> tuple[np.ndarray, np.ndarray]:
-        """Per-frame coverage (N, 3) and features (N, F), computed in chunks."""
+        """Per-frame coverage (N, 3) and features (N, 4, F) of the mirror views, computed in
+        chunks."""
         model = self.models.coverage
         depth, region = self.depth(), self.region
         cues = self.cues(len(depth))
@@ -291,7 +292,7 @@ def _percentiles(values: np.ndarray, q: tuple[float, ...]) -> list[float] | None
 def video_features(source: Path, work: Path, config: RunConfig, models: Models,
                    progress: bool = True) -> tuple[np.ndarray, int]:
     """The ingest and depth stages of `run_video` (resumable, in `work`), then the per-frame
-    coverage features (N, F); returns them with the frames per segment."""
+    coverage features (N, 4, F); returns them with the frames per segment."""
     source, work = Path(source), Path(work)
     _prepare(work, config, source, models)
     run = _Run(source, work, config, models, None, progress)

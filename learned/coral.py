@@ -38,7 +38,7 @@ def coral_transform(source_mean: np.ndarray, source_cov: np.ndarray, target: np.
         raise InputError(f"target embeddings must be (n, {len(source_mean)}), got "
                          f"{target.shape}")
     if len(target) < 2:
-        raise InputError(f"CORAL needs at least 2 target segments, got {len(target)}; give "
+        raise InputError(f"CORAL needs at least 2 target embeddings, got {len(target)}; give "
                          f"more or longer unlabelled videos")
     if not np.isfinite(target).all():
         raise InputError("target embeddings contain NaN or infinite values")

@@ -218,8 +218,8 @@ class CoverageModel(nn.Module):
         """Coverage (S,) of the windows [s, s + T) of one video's (N, len(MIRRORS), F)
         features: the mean over the mirror views."""
         embedded = self.segment_embeddings(features, starts)
-        return self.segment.head(embedded.flatten(0, 1)).view(len(starts), -1).mean(dim=1) \
-            .cpu().numpy().astype(np.float64)
+        values = self.segment.head(embedded.flatten(0, 1)).view(len(starts), len(MIRRORS))
+        return values.mean(dim=1).cpu().numpy().astype(np.float64)
 
     def save(self, path: Path, step: int = 0) -> None:
         save_checkpoint(path, {"frame": self.frame, "segment": self.segment},

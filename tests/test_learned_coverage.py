@@ -261,6 +261,7 @@ def test_a_mirrored_video_gets_the_same_coverage():
     np.testing.assert_allclose(features_lr[:, [1, 0, 3, 2]], features, atol=1e-5)
     np.testing.assert_allclose(model.segment_outputs(features_lr, [0, 10]),
                                model.segment_outputs(features, [0, 10]), atol=1e-6)
+    assert model.segment_outputs(features, []).shape == (0,)
 
 
 def test_training_reduces_both_losses_on_a_tiny_set():
