@@ -33,7 +33,9 @@ def timed(fn, repeats: int) -> float:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--threads", type=int, default=2)
-    parser.add_argument("--batch", type=int, default=32)
+    parser.add_argument("--batch", type=int, default=32, help="frames per call (fast preset)")
+    parser.add_argument("--frame-batch", type=int, default=32,
+                        help="frames per pass of the per-frame network within a call")
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
     print(f"torch threads {args.threads}, load average {os.getloadavg()[0]:.2f}")
@@ -45,7 +47,8 @@ def main() -> None:
         depth = np.random.default_rng(0).normal(
             size=(batch, 1, config.height, config.width)).astype(np.float32)
         cues = np.zeros((batch, config.cue_size), np.float32)
-        frame_s = timed(lambda d=depth, c=cues, m=model: m.frame_outputs(d, c), 3)
+        frame_s = timed(lambda d=depth, c=cues, m=model: m.frame_outputs(
+            d, c, batch=args.frame_batch), 3)
         features = np.random.default_rng(1).normal(
             size=(config.segment_frames, len(MIRRORS), config.feature_size)).astype(np.float32)
         seg_s = timed(lambda f=features, m=model: m.segment_outputs(f, [0]), 20)

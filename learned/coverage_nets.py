@@ -163,7 +163,8 @@ class CoverageModel(nn.Module):
                       ) -> tuple[np.ndarray, np.ndarray]:
         """(N, 1, h, w) normalised depth and (N, cue_size) cues -> per-frame coverage (N, 3),
         the mean over the mirror views, and the features (N, len(MIRRORS), F) of each view.
-        `batch` frames per pass (4 times as many views; 32 ran 1.8 times faster than 256 here)."""
+        `batch` frames per pass (4 times as many views; 32 ran 1.6 times faster than 256 on
+        this CPU: `benchmarks/bench_coverage.py --frame-batch`)."""
         expected = (1, self.config.height, self.config.width)
         if inputs.ndim != 4 or inputs.shape[1:] != expected:
             raise InputError(f"per-frame input must be (N, {expected}) normalised depth for the "

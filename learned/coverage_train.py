@@ -159,11 +159,9 @@ def train_segment_net(model: CoverageModel, samples: list[ProcedureSamples],
             running = []
     bar.close()
     net.eval()
-    picks = np.repeat(np.arange(len(windows)), len(MIRRORS))  # every window in every view
-    views = np.tile(np.arange(len(MIRRORS)), len(windows))
-    with torch.no_grad():
-        embedded = torch.cat([net.embed(stack(picks[k:k + 256], views[k:k + 256]))
-                              for k in range(0, len(picks), 256)]).double()
+    starts = [[start for j, start, _ in windows if j == k] for k in range(len(samples))]
+    embedded = torch.cat([model.segment_embeddings(f, ss).flatten(0, 1)
+                          for f, ss in zip(features, starts, strict=True) if ss]).double()
     net.source_mean.copy_(embedded.mean(0).float())
     net.source_cov.copy_(torch.cov(embedded.T).float())
 

@@ -282,6 +282,23 @@ def test_training_reduces_both_losses_on_a_tiny_set():
     assert all(np.isfinite(e["loss"]) for e in log)
 
 
+def test_source_statistics_are_those_of_every_training_window_in_every_view():
+    samples = toy_samples()
+    torch.manual_seed(0)
+    model = CoverageModel(replace(SMALL, segment_epochs=2))
+    features = [model.frame_outputs(s.inputs, s.cues)[1] for s in samples]
+    train_segment_net(model, samples, features, lambda entry: None)
+    T = SMALL.segment_frames
+    windows = [torch.from_numpy(f[start:start + T, view].astype(np.float32))
+               for s, f in zip(samples, features, strict=True)
+               for start, label in zip(s.window_starts, s.window_labels, strict=True)
+               if np.isfinite(label) for view in range(len(MIRRORS))]
+    with torch.no_grad():
+        embedded = model.segment.embed(torch.stack(windows)).double()
+    assert torch.allclose(model.segment.source_mean.double(), embedded.mean(0), atol=1e-5)
+    assert torch.allclose(model.segment.source_cov.double(), torch.cov(embedded.T), atol=1e-5)
+
+
 def test_fold_split_never_mixes_procedures():
     folds = fold_split(11, 5, seed=3)
     assert len(folds) == 5
