@@ -45,6 +45,8 @@ from learned.coverage_nets import (
     CoverageModel,
     load_coverage_model,
     normalise_depth,
+    region_medians,
+    relative_scale,
     resample_features,
 )
 from learned.frames import IMAGE_SUFFIXES, FrameSequence, check_fps
@@ -236,11 +238,20 @@ class _Run:
 
     def cues(self, count: int) -> np.ndarray:
         """(N, cue_size): the coverage model's values beside each frame's depth, the travel
-        and (if it reads one) the field of view of the network's intrinsics."""
+        and (if it reads them) the field of view of the network's intrinsics and the frames'
+        depth scale against the video's."""
+        config = self.models.coverage.config
         cues = [self.travel(count)]
-        if self.models.coverage.config.field_of_view == "predicted":
+        if config.field_of_view == "predicted":
             cues.append(view_values(self.network_K(), self.size[1], self.size[0], count,
                                     name=str(self.path(W.INTRINSICS))))
+        if config.depth_scale:
+            depth = self.depth()
+            medians = np.concatenate([
+                region_medians(np.asarray(depth[start:start + 512], np.float32), self.region,
+                               name=self.source.name)
+                for start in range(0, len(depth), 512)])
+            cues.append(relative_scale(medians, name=self.source.name))
         return np.concatenate(cues, axis=1)
 
     def frame_outputs(self) -> tuple[np.ndarray, np.ndarray]:

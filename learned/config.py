@@ -221,6 +221,10 @@ class CoverageConfig:
     """Camera input of the per-frame network besides the depth: 'predicted' (the median
     intrinsics of the motion network's consecutive pairs, as `c2d2 run` has them), 'true' (the
     simulator's camera, an ablation) or 'none' (learned.view)."""
+    depth_scale: bool = False
+    """Give the per-frame network each frame's depth scale against its video's,
+    log(median depth / the video's median of the frames' median depths), as one more cue
+    (learned.coverage_nets.relative_scale)."""
     frame_rate: float = 30.0
     """Frame rate of the training videos: a segment of segment_frames lasts
     segment_frames / frame_rate seconds; other videos' travel gap is scaled by time."""
@@ -276,8 +280,10 @@ class CoverageConfig:
 
     @property
     def cue_size(self) -> int:
-        """Per-frame values beside the depth: the travel, then the field of view."""
-        return self.travel_size + (VIEW_SIZE if self.field_of_view != "none" else 0)
+        """Per-frame values beside the depth: the travel, the field of view, the depth
+        scale."""
+        return (self.travel_size + (VIEW_SIZE if self.field_of_view != "none" else 0)
+                + int(self.depth_scale))
 
     def travel_frames(self, fps: float) -> int:
         """The travel gap, the same time in frames of a video at `fps` (0: no travel input)."""

@@ -4,7 +4,8 @@ The per-frame input is the depth network's output on the procedure's RGB (what i
 or the simulator's depth for the ablation, normalised by `normalise_depth`, and the cues beside
 it: the direction of travel from the motion network (learned.travel; the procedures are
 withdrawals) and, if asked for, the field of view of the motion network's intrinsics or of the
-simulator's camera (learned.view). Labels: the
+simulator's camera (learned.view) and each frame's depth scale against the procedure's
+(`relative_scale`, from the per-frame medians of the same depth). Labels: the
 per-frame coverage of coverage.json for the three Δ pairs, the default-pair coverage of
 overlapping training windows (computed here with the exact ground truth) and of the
 back-to-back segments of coverage.json (used for evaluation).
@@ -26,7 +27,7 @@ from hybrid.coverage import Lumen, compute_coverage, pair_key
 from hybrid.dataset import Procedure
 from hybrid.types import InputError
 from learned.config import CoverageConfig
-from learned.coverage_nets import normalise_depth
+from learned.coverage_nets import normalise_depth, region_medians, relative_scale
 from learned.frames import FrameSequence, open_sequence
 from learned.infer import DepthOutput, infer_sequence
 from learned.model import DepthModel
@@ -45,6 +46,8 @@ class ProcedureSamples:
     """(N, travel_size) float32 direction of travel and log relative speed."""
     view: np.ndarray
     """(N, 2 or 0) float32 field-of-view values (learned.view), the same for every frame."""
+    scale: np.ndarray
+    """(N, 1 or 0) float32 depth scale against the procedure's (relative_scale)."""
     frame_labels: np.ndarray
     """(N, 3) float32 per-frame coverage per Δ pair, NaN where undefined."""
     window_starts: np.ndarray
@@ -58,8 +61,8 @@ class ProcedureSamples:
 
     @property
     def cues(self) -> np.ndarray:
-        """(N, cue_size) per-frame network values beside the depth: travel, then view."""
-        return np.concatenate([self.travel, self.view], axis=1)
+        """(N, cue_size) per-frame network values beside the depth: travel, view, scale."""
+        return np.concatenate([self.travel, self.view, self.scale], axis=1)
 
 
 def procedure_samples(path: Path, config: CoverageConfig, depth_model: DepthModel | None,
@@ -81,18 +84,28 @@ def procedure_samples(path: Path, config: CoverageConfig, depth_model: DepthMode
     size = f"{config.height}x{config.width}" + ("" if config.median_normalise else "-log")
     predicted = config.input_depth != "true"
     inputs_path = cache / f"input-{depth_tag if predicted else 'true'}-{size}.npy"
+    medians_path = cache / f"medians-{depth_tag if predicted else 'true'}.npy"
     relative_path = cache / f"relative-{depth_tag}-{config.travel_gap}.npy"
     view_path = cache / f"view-{depth_tag}.npy"
     # One pass of the depth model for whichever of its caches are missing: the travel's pairs,
     # and consecutive pairs for the view (their median K, as `c2d2 run`'s intrinsics.json).
-    missing_depth = predicted and not inputs_path.is_file()
+    missing_depth = predicted and not (inputs_path.is_file() and (
+        medians_path.is_file() or not config.depth_scale))
     gaps = {config.travel_gap} if config.travel_gap and not relative_path.is_file() else set()
     if config.field_of_view == "predicted" and not view_path.is_file():
         gaps.add(1)
     network = functools.cache(lambda: _network_outputs(proc, depth_model, missing_depth,
                                                        tuple(gaps), progress))
-    inputs = _cached(inputs_path, lambda: _predicted_inputs(*network(), config) if predicted
-                     else _true_inputs(proc, config))
+    depth = functools.cache(lambda: _predicted_depth(*network()) if predicted
+                            else _true_depth(proc))
+    inputs = _cached(inputs_path, lambda: normalise_depth(
+        *depth(), (config.height, config.width), name=str(proc.path),
+        by_median=config.median_normalise).astype(np.float16))
+    if config.depth_scale:
+        scale = relative_scale(_cached(medians_path, lambda: region_medians(*depth())),
+                               name=str(proc.path))
+    else:
+        scale = np.zeros((len(inputs), 0), dtype=np.float32)
     if config.travel_gap:
         relative = _cached(relative_path, lambda: network()[1].relative[config.travel_gap])
         travel = travel_features(relative, len(inputs), name=str(proc.path))
@@ -112,21 +125,18 @@ def procedure_samples(path: Path, config: CoverageConfig, depth_model: DepthMode
                        for p in truth.delta_pairs], dtype=np.float32).T
     return ProcedureSamples(
         name=f"{proc.path.parent.name}/{proc.path.name}", inputs=inputs, travel=travel,
-        view=view,
-        frame_labels=labels,
+        view=view, scale=scale, frame_labels=labels,
         window_starts=windows[:, 0].astype(int), window_labels=windows[:, 1],
         segment_starts=np.array([s.start for s in truth.segments], dtype=int),
         segment_labels=truth.segment_labels())
 
 
-def _true_inputs(proc: Procedure, config: CoverageConfig) -> np.ndarray:
-    """Normalised inputs (N, 1, h, w) float16 from the simulator's depth (the ablation)."""
+def _true_depth(proc: Procedure) -> tuple[np.ndarray, np.ndarray]:
+    """The simulator's depth (N, H, W) and its region (all of the image; the ablation)."""
     depth = np.stack([proc.depth(i) for i in range(proc.num_frames)])
     # No surface (looking out of the open rectum end): as far as the frame's farthest wall.
     depth = np.where(depth > 0, depth, depth.max(axis=(1, 2), keepdims=True))
-    region = np.ones(depth.shape[1:], dtype=bool)
-    return normalise_depth(depth, region, (config.height, config.width), name=str(proc.path),
-                           by_median=config.median_normalise).astype(np.float16)
+    return depth, np.ones(depth.shape[1:], dtype=bool)
 
 
 def _network_outputs(proc: Procedure, depth_model: DepthModel | None, depth: bool,
@@ -141,11 +151,9 @@ def _network_outputs(proc: Procedure, depth_model: DepthModel | None, depth: boo
     return seq, infer_sequence(depth_model, seq, gaps, depth=depth, progress=progress)
 
 
-def _predicted_inputs(seq: FrameSequence, output: DepthOutput, config: CoverageConfig
-                      ) -> np.ndarray:
-    """Normalised inputs (N, 1, h, w) float16 from the depth model's depth."""
-    return normalise_depth(output.depth, seq.region, (config.height, config.width),
-                           name=seq.name, by_median=config.median_normalise).astype(np.float16)
+def _predicted_depth(seq: FrameSequence, output: DepthOutput) -> tuple[np.ndarray, np.ndarray]:
+    """The depth model's depth (N, H, W) and the frames' image region."""
+    return output.depth, seq.region
 
 
 def _predicted_view(seq: FrameSequence, output: DepthOutput) -> np.ndarray:

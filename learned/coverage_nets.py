@@ -1,7 +1,8 @@
 """The two-stage coverage networks (paper section 4.2) and the rule that normalises their input.
 
 Stage 1, `FrameNet`: one depth image and the frame's cues, its direction of travel
-(learned.travel) and optionally its camera's field of view (learned.view) -> coverage of that
+(learned.travel) and optionally its camera's field of view (learned.view) and its depth scale
+against its video's (`relative_scale`) -> coverage of that
 frame for the three (Δ0, Δ1) pairs; its penultimate layer (global average of
 the last ResNet stage) is the frame's feature vector.
 Stage 2, `SegmentNet`: the T x F features of a segment -> six 1-D convolutions -> average over
@@ -34,13 +35,9 @@ from learned.device import device_of
 from learned.nets import ResNetEncoder
 
 
-def normalise_depth(depth: np.ndarray, region: np.ndarray, size: tuple[int, int],
-                    name: str = "depth", by_median: bool = True) -> np.ndarray:
-    """(N, H, W) depth and (H, W) bool region -> (N, 1, h, w) float32 per-frame net input.
-
-    by_median=False keeps the depth's own scale: log(depth) (an ablation for metric depth).
-    """
-    depth = np.asarray(depth, dtype=np.float32)
+def region_medians(depth: np.ndarray, region: np.ndarray, name: str = "depth") -> np.ndarray:
+    """(N,) median of each of the (N, H, W) depth maps inside the (H, W) bool region; a clear
+    error on NaN, infinite or non-positive depth there."""
     if depth.ndim != 3 or depth.shape[1:] != region.shape:
         raise InputError(f"{name}: expected (N, H, W) depth maps of the region's size "
                          f"{region.shape}, got {depth.shape}")
@@ -50,12 +47,36 @@ def normalise_depth(depth: np.ndarray, region: np.ndarray, size: tuple[int, int]
         frames = np.flatnonzero(bad.any(axis=1))[:10].tolist()
         raise InputError(f"{name}: NaN, infinite or non-positive depth inside the image region "
                          f"in frames {frames}; recompute the depth")
-    median = np.median(inside, axis=1)
+    return np.median(inside, axis=1)
+
+
+def normalise_depth(depth: np.ndarray, region: np.ndarray, size: tuple[int, int],
+                    name: str = "depth", by_median: bool = True) -> np.ndarray:
+    """(N, H, W) depth and (H, W) bool region -> (N, 1, h, w) float32 per-frame net input.
+
+    by_median=False keeps the depth's own scale: log(depth) (an ablation for metric depth).
+    """
+    depth = np.asarray(depth, dtype=np.float32)
+    median = region_medians(depth, region, name)
     scale = median if by_median else np.ones_like(median)
     logs = np.log(np.where(region, depth, median[:, None, None]) / scale[:, None, None])
     height, width = size
     small = [cv2.resize(d, (width, height), interpolation=cv2.INTER_AREA) for d in logs]
     return np.stack(small)[:, None].astype(np.float32)
+
+
+def relative_scale(medians: np.ndarray, name: str = "depth") -> np.ndarray:
+    """(N, 1) float32 scale cue of a video's frames from their (N,) median depths:
+    log(median / the video's median of them). The median normalisation hides how far the wall
+    is, which the coverage of a band a fixed number of centimetres ahead depends on; within a
+    video the depth network keeps its scale, so a frame's depth against the video's typical
+    depth tells a narrow stretch of colon from a wide one."""
+    medians = np.asarray(medians, dtype=np.float64)
+    if medians.ndim != 1 or not len(medians) or not (np.isfinite(medians).all()
+                                                     and (medians > 0).all()):
+        raise InputError(f"{name}: expected positive finite per-frame median depths, got "
+                         f"{medians.shape} values")
+    return np.log(medians / np.median(medians))[:, None].astype(np.float32)
 
 
 MIRRORS = ((False, False), (True, False), (False, True), (True, True))
@@ -67,7 +88,7 @@ def mirrored(depth: torch.Tensor, cues: torch.Tensor, flips: torch.Tensor, trave
     """Depth (B, 1, h, w) and cues (B, cue_size) of the mirrored views: flips (B, 2) bool
     mirrors left-right (image x; travel x negated) and up-down (image y; travel y negated).
     `travel`: whether the cues begin with the travel columns (x, y, z, speed); the field of
-    view is unchanged by a mirror."""
+    view and the depth scale are unchanged by a mirror."""
     depth = torch.where(flips[:, 0, None, None, None], depth.flip(-1), depth)
     depth = torch.where(flips[:, 1, None, None, None], depth.flip(-2), depth)
     if travel:
@@ -88,8 +109,8 @@ def resample_features(features: np.ndarray, segment_frames: int, window: int) ->
 
 
 class FrameNet(nn.Module):
-    """Normalised depth (B, 1, h, w) and cues (B, config.cue_size): travel, then field of
-    view -> per-frame coverage (B, 3); features() gives (B, F). The cues enter the encoder as
+    """Normalised depth (B, 1, h, w) and cues (B, config.cue_size): travel, field of view,
+    depth scale -> per-frame coverage (B, 3); features() gives (B, F). The cues enter the encoder as
     constant planes beside the depth, so that every layer can condition on them."""
 
     def __init__(self, config: CoverageConfig):
@@ -172,7 +193,8 @@ class CoverageModel(nn.Module):
         if cues.shape != (len(inputs), self.config.cue_size):
             raise InputError(f"per-frame cues must be (N, {self.config.cue_size}) for "
                              f"N = {len(inputs)} frames (travel_gap {self.config.travel_gap}, "
-                             f"field_of_view {self.config.field_of_view!r}), got {cues.shape}")
+                             f"field_of_view {self.config.field_of_view!r}, depth_scale "
+                             f"{self.config.depth_scale}), got {cues.shape}")
         self.eval()
         device = device_of(self)
         flips = torch.tensor(MIRRORS, device=device)

@@ -29,6 +29,7 @@ from learned.coverage_nets import (
     load_coverage_model,
     mirrored,
     normalise_depth,
+    relative_scale,
     resample_features,
 )
 from learned.coverage_train import (
@@ -69,6 +70,7 @@ def toy_samples(count: int = 3, frames: int = 60, seed: int = 0) -> list[Procedu
         starts = np.arange(0, frames - SMALL.segment_frames + 1, SMALL.segment_stride)
         window = np.array([labels[s:s + SMALL.segment_frames, 0].mean() for s in starts])
         out.append(ProcedureSamples(f"toy/{k}", inputs.astype(np.float16), travel,
+                                    np.zeros((frames, 0), np.float32),
                                     np.zeros((frames, 0), np.float32),
                                     labels.astype(np.float32), starts, window, starts[:1],
                                     window[:1]))
@@ -211,6 +213,37 @@ def test_per_frame_net_learns_from_the_field_of_view_what_depth_cannot_tell():
         train_frame_net(model, given, lambda e: None)
         errors[field_of_view] = frame_loss(model, given)
     assert errors["true"] < 0.5 * errors["none"], errors
+
+
+def test_per_frame_net_learns_from_the_depth_scale_what_normalised_depth_cannot_tell():
+    """The toy labels fall as the frame's depth scale grows (a wider stretch of colon, whose
+    wall lies farther outside the band's view), which the median-normalised input hides: only
+    the scale cue tells the frames apart."""
+    rng = np.random.default_rng(7)
+    scaled = []
+    for s in toy_samples(count=4, seed=7):
+        scale = relative_scale(np.exp(np.cumsum(rng.normal(0, 0.1, len(s.inputs)))))
+        scaled.append(replace(s, scale=scale,
+                              frame_labels=s.frame_labels / (1 + np.exp(2 * scale))))
+    errors = {}
+    for depth_scale in (True, False):
+        torch.manual_seed(0)
+        model = CoverageModel(replace(SMALL, depth_scale=depth_scale))
+        given = [replace(s, scale=s.scale[:, :int(depth_scale)]) for s in scaled]
+        train_frame_net(model, given, lambda e: None)
+        errors[depth_scale] = frame_loss(model, given)
+    assert errors[True] < 0.5 * errors[False], errors
+
+
+def test_relative_scale_is_log_depth_scale_over_the_videos_median():
+    medians = np.array([1.0, 2.0, 4.0, 8.0, 0.5])
+    scale = relative_scale(medians)
+    assert scale.shape == (5, 1)
+    np.testing.assert_allclose(scale[:, 0], np.log(medians / 2.0), atol=1e-6)
+    np.testing.assert_allclose(relative_scale(medians * 30.0), scale, atol=1e-6)
+    for bad in (np.array([1.0, 0.0]), np.array([1.0, np.nan]), np.zeros(0)):
+        with pytest.raises(InputError, match="clip.mp4"):
+            relative_scale(bad, name="clip.mp4")
 
 
 def test_field_of_view_values_are_log_tangents_of_the_half_angles():
@@ -505,6 +538,34 @@ def test_field_of_view_inputs_of_a_simulated_procedure(tmp_path, two_procedures)
     # Read back from the caches, without the depth model.
     again = procedure_samples(path, replace(config, field_of_view="predicted"), None, "tiny")
     assert np.array_equal(again.view, predicted.view)
+
+
+def test_depth_scale_input_of_a_simulated_procedure(two_procedures):
+    """The scale cue of each frame: the median of its depth (the simulator's, or the depth
+    network's over the image region) against the procedure's median of those medians, the
+    medians cached beside the other inputs."""
+    torch.manual_seed(0)
+    depth_model = DepthModel(TINY).eval()
+    path = two_procedures / "proc_0000"
+    proc = Procedure.open(path)
+    config = replace(SMALL, depth_scale=True, input_depth="true")
+    true = procedure_samples(path, config, depth_model, "tiny")
+    assert true.cues.shape == (len(true.inputs), 5)
+    filled = (np.where(d > 0, d, d.max()) for d in map(proc.depth, range(proc.num_frames)))
+    medians = np.array([np.median(d) for d in filled])  # no surface: the farthest wall
+    np.testing.assert_allclose(true.scale[:, 0], np.log(medians / np.median(medians)),
+                               atol=1e-5)
+    assert true.scale.std() > 0.01  # the frames' depth scales differ
+    predicted = procedure_samples(path, replace(config, input_depth="predicted"), depth_model,
+                                  "tiny")
+    seq = open_sequence(path, (TINY.height, TINY.width))
+    depth = infer_sequence(depth_model, seq, (), depth=True).depth
+    frame_medians = np.median(depth[:, seq.region], axis=1)
+    np.testing.assert_allclose(predicted.scale[:, 0],
+                               np.log(frame_medians / np.median(frame_medians)), atol=1e-5)
+    assert (path / "cache" / "medians-tiny.npy").is_file()
+    again = procedure_samples(path, replace(config, input_depth="predicted"), None, "tiny")
+    assert np.array_equal(again.scale, predicted.scale)
 
 
 def test_eval_coverage_with_a_depth_checkpoint_as_model(tmp_path, two_procedures):

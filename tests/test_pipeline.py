@@ -243,10 +243,11 @@ def test_learned_stage_computes_a_travel_gap_its_depth_stage_lacks(pipeline_run,
     assert learned == json.loads((out / W.LEARNED).read_text())
 
 
-def test_networks_reading_the_field_of_view_get_that_of_the_network_intrinsics(procedure,
-                                                                                tmp_path):
-    """Coverage networks trained with field_of_view='predicted' (untrained here) read each
-    frame's travel and then the field of view of the run's intrinsics.json."""
+def test_networks_reading_the_field_of_view_and_scale_get_those_of_the_run(procedure,
+                                                                            tmp_path):
+    """Coverage networks trained with field_of_view='predicted' and depth_scale (untrained
+    here) read each frame's travel, the field of view of the run's intrinsics.json, then the
+    frame's depth scale against the video's, from the run's depth."""
     from learned.checkpoint import file_tag
     from learned.checkpoints import SHIPPED_DEPTH
     from learned.config import COVERAGE_PRESETS
@@ -256,7 +257,8 @@ def test_networks_reading_the_field_of_view_get_that_of_the_network_intrinsics(p
     from learned.view import view_values
 
     torch.manual_seed(0)
-    coverage = CoverageModel(replace(COVERAGE_PRESETS["fast"], field_of_view="predicted"))
+    coverage = CoverageModel(replace(COVERAGE_PRESETS["fast"], field_of_view="predicted",
+                                     depth_scale=True))
     models = Models(load_depth_model(SHIPPED_DEPTH), coverage,
                     {"depth": file_tag(SHIPPED_DEPTH), "coverage": "untrained"})
     with _OneThread():
@@ -272,10 +274,13 @@ def test_networks_reading_the_field_of_view_get_that_of_the_network_intrinsics(p
     view = view_values(K, depth.shape[2], depth.shape[1], len(depth))
     region = cv2.imread(str(work / W.REGION), cv2.IMREAD_GRAYSCALE) > 0
     inputs = normalise_depth(depth, region, (coverage.config.height, coverage.config.width))
-    expected = coverage.frame_outputs(inputs, np.concatenate([travel, view], axis=1))[1]
+    medians = np.median(depth[:, region], axis=1)
+    scale = np.log(medians / np.median(medians))[:, None]
+    expected = coverage.frame_outputs(inputs, np.concatenate([travel, view, scale], axis=1))[1]
     np.testing.assert_allclose(features, expected, atol=1e-5)
-    blind = coverage.frame_outputs(inputs, np.concatenate([travel, 0 * view], axis=1))[1]
-    assert np.abs(features - blind).max() > 1e-3  # the view is read
+    for blind in ([travel, 0 * view, scale], [travel, view, 0 * scale]):
+        blind = coverage.frame_outputs(inputs, np.concatenate(blind, axis=1))[1]
+        assert np.abs(features - blind).max() > 1e-3  # the view and the scale are read
 
 
 # --- resuming a work directory ---------------------------------------------------------------
