@@ -52,7 +52,7 @@ from learned.coverage_nets import (
 from learned.frames import IMAGE_SUFFIXES, FrameSequence, check_fps
 from learned.infer import aggregate_intrinsics, infer_sequence
 from learned.model import DepthModel, load_depth_model
-from learned.travel import no_travel, travel_features
+from learned.travel import chain_relative, no_travel, travel_features
 from learned.view import view_values
 
 log = logging.getLogger(__name__)
@@ -224,7 +224,7 @@ class _Run:
 
     def travel(self, count: int) -> np.ndarray:
         """(N, travel_size): each of the N frames' direction of travel, the coverage model's
-        input."""
+        input (and that over `travel_hops` gaps chained, if it reads it)."""
         gap = self.travel_gap
         if not gap:
             return no_travel(count)
@@ -233,8 +233,12 @@ class _Run:
         if relative is None:  # a depth stage run for a model without this gap
             relative = infer_sequence(self.models.depth, self.sequence(), (gap,), depth=False,
                                       progress=self.progress).relative[gap]
-        return travel_features(relative, count, self.config.reconstruction.lumen.withdrawal,
-                               name=str(self.path(W.RELATIVE)))
+        withdrawal, name = self.config.reconstruction.lumen.withdrawal, str(self.path(W.RELATIVE))
+        travel = [travel_features(relative, count, withdrawal, name=name)]
+        if hops := self.models.coverage.config.travel_hops:
+            travel.append(travel_features(chain_relative(relative, gap, hops), count,
+                                          withdrawal, name=name))
+        return np.concatenate(travel, axis=1)
 
     def cues(self, count: int) -> np.ndarray:
         """(N, cue_size): the coverage model's values beside each frame's depth, the travel

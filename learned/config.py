@@ -217,6 +217,10 @@ class CoverageConfig:
     """Frames (at frame_rate) between the motion network's pair that gives each frame's
     direction of travel, an input of the per-frame network besides the depth
     (learned.travel); 0: depth only, as in the paper."""
+    travel_hops: int = 0
+    """Also the travel over this many travel gaps, chained from the motion network's pairs
+    (learned.travel.chain_relative), as four more cues: a longer baseline that a pause or a
+    jitter does not flip (0: off)."""
     field_of_view: str = "none"
     """Camera input of the per-frame network besides the depth: 'predicted' (the median
     intrinsics of the motion network's consecutive pairs, as `c2d2 run` has them), 'true' (the
@@ -267,6 +271,9 @@ class CoverageConfig:
                              f"{self.travel_gap}")
         if not self.frame_rate > 0:
             raise ValueError(f"frame_rate must be positive, got {self.frame_rate}")
+        if self.travel_hops < 0:
+            raise ValueError(f"travel_hops must be 0 (off) or a positive count, got "
+                             f"{self.travel_hops}")
         if self.depth_power < 0:
             raise ValueError(f"depth_power must be >= 0 (0: off), got {self.depth_power}")
         if self.field_of_view not in ("none", "predicted", "true"):
@@ -276,7 +283,7 @@ class CoverageConfig:
     @property
     def travel_size(self) -> int:
         """Per-frame travel values fed to the per-frame network (0 when travel_gap is 0)."""
-        return TRAVEL_SIZE if self.travel_gap else 0
+        return TRAVEL_SIZE * (1 + (self.travel_hops > 0)) if self.travel_gap else 0
 
     @property
     def cue_size(self) -> int:

@@ -31,7 +31,7 @@ from learned.coverage_nets import normalise_depth, region_medians, relative_scal
 from learned.frames import FrameSequence, open_sequence
 from learned.infer import DepthOutput, infer_sequence
 from learned.model import DepthModel
-from learned.travel import no_travel, travel_features
+from learned.travel import chain_relative, no_travel, travel_features
 from learned.view import view_values
 
 
@@ -109,6 +109,10 @@ def procedure_samples(path: Path, config: CoverageConfig, depth_model: DepthMode
     if config.travel_gap:
         relative = _cached(relative_path, lambda: network()[1].relative[config.travel_gap])
         travel = travel_features(relative, len(inputs), name=str(proc.path))
+        if config.travel_hops:
+            chained = chain_relative(relative, config.travel_gap, config.travel_hops)
+            travel = np.concatenate([travel, travel_features(chained, len(inputs),
+                                                             name=str(proc.path))], axis=1)
     else:
         travel = no_travel(len(inputs))
     if config.field_of_view == "none":

@@ -33,6 +33,7 @@ from learned.checkpoint import load_model, save_checkpoint
 from learned.config import CoverageConfig
 from learned.device import device_of
 from learned.nets import ResNetEncoder
+from learned.travel import TRAVEL_SIZE
 
 
 def region_medians(depth: np.ndarray, region: np.ndarray, name: str = "depth") -> np.ndarray:
@@ -83,18 +84,18 @@ MIRRORS = ((False, False), (True, False), (False, True), (True, True))
 """The mirror views of a frame: (left-right, up-down) flips."""
 
 
-def mirrored(depth: torch.Tensor, cues: torch.Tensor, flips: torch.Tensor, travel: bool
+def mirrored(depth: torch.Tensor, cues: torch.Tensor, flips: torch.Tensor, travel: int
              ) -> tuple[torch.Tensor, torch.Tensor]:
     """Depth (B, 1, h, w) and cues (B, cue_size) of the mirrored views: flips (B, 2) bool
     mirrors left-right (image x; travel x negated) and up-down (image y; travel y negated).
-    `travel`: whether the cues begin with the travel columns (x, y, z, speed); the field of
-    view and the depth scale are unchanged by a mirror."""
+    `travel`: how many travel columns the cues begin with, in blocks of (x, y, z, speed); the
+    field of view and the depth scale are unchanged by a mirror."""
     depth = torch.where(flips[:, 0, None, None, None], depth.flip(-1), depth)
     depth = torch.where(flips[:, 1, None, None, None], depth.flip(-2), depth)
-    if travel:
-        signs = torch.ones_like(cues)
-        signs[:, :2] = 1.0 - 2.0 * flips.to(cues.dtype)
-        cues = cues * signs
+    signs = torch.ones_like(cues)
+    for block in range(0, travel, TRAVEL_SIZE):
+        signs[:, block:block + 2] = 1.0 - 2.0 * flips.to(cues.dtype)
+    cues = cues * signs
     return depth, cues
 
 
@@ -204,7 +205,7 @@ class CoverageModel(nn.Module):
                                                       dtype=np.float32)).to(device)
             m = torch.from_numpy(np.ascontiguousarray(cues[start:start + batch],
                                                       dtype=np.float32)).to(device)
-            views = [mirrored(x, m, flip.expand(len(x), 2), self.config.travel_size > 0)
+            views = [mirrored(x, m, flip.expand(len(x), 2), self.config.travel_size)
                      for flip in flips]
             f = self.frame.features(torch.cat([v[0] for v in views]),
                                     torch.cat([v[1] for v in views]))

@@ -91,7 +91,7 @@ def train_frame_net(model: CoverageModel, samples: list[ProcedureSamples], log,
         x, m = mirrored(torch.from_numpy(inputs[ids].astype(np.float32)).to(device),
                         torch.from_numpy(cues[ids]).to(device),
                         torch.from_numpy(rng.random((len(ids), 2)) < 0.5).to(device),
-                        config.travel_size > 0)
+                        config.travel_size)
         if config.depth_power:
             u = rng.uniform(-config.depth_power, config.depth_power, len(ids))
             x = powered(x, torch.from_numpy(np.exp(u).astype(np.float32)).to(device))

@@ -41,6 +41,7 @@ from learned.coverage_train import (
 from learned.frames import open_sequence
 from learned.infer import infer_sequence
 from learned.model import DepthModel
+from learned.travel import travel_features
 from learned.view import view_values
 
 pytestmark = pytest.mark.usefixtures("one_thread")
@@ -261,15 +262,20 @@ def test_mirroring_negates_the_travel_along_the_flipped_axis():
     depth = torch.arange(6.0).reshape(1, 1, 2, 3).repeat(3, 1, 1, 1)
     cues = torch.tensor([[0.6, 0.3, -0.7, 0.3, 0.2, 0.1]]).repeat(3, 1)  # travel, then view
     flips = torch.tensor([[True, False], [False, True], [False, False]])
-    x, m = mirrored(depth, cues, flips, travel=True)
+    x, m = mirrored(depth, cues, flips, travel=4)
     assert torch.equal(x[0, 0], depth[0, 0].flip(-1)) and torch.equal(x[1, 0], depth[1, 0].flip(-2))
     assert torch.equal(x[2], depth[2])
     assert m[0].tolist() == pytest.approx([-0.6, 0.3, -0.7, 0.3, 0.2, 0.1])
     assert m[1].tolist() == pytest.approx([0.6, -0.3, -0.7, 0.3, 0.2, 0.1])
     assert torch.equal(m[2], cues[2])
+    # Two travel blocks (the short and the chained travel): both are mirrored.
+    two = torch.cat([cues[:, :4], cues], dim=1)
+    m = mirrored(depth, two, flips, travel=8)[1]
+    assert m[0].tolist() == pytest.approx([-0.6, 0.3, -0.7, 0.3, -0.6, 0.3, -0.7, 0.3, 0.2, 0.1])
+    assert m[1].tolist() == pytest.approx([0.6, -0.3, -0.7, 0.3, 0.6, -0.3, -0.7, 0.3, 0.2, 0.1])
     # Without travel columns the field of view is left as it is.
-    assert torch.equal(mirrored(depth, cues[:, 4:], flips, travel=False)[1], cues[:, 4:])
-    assert mirrored(depth, torch.zeros(3, 0), flips, travel=False)[1].shape == (3, 0)
+    assert torch.equal(mirrored(depth, cues[:, 4:], flips, travel=0)[1], cues[:, 4:])
+    assert mirrored(depth, torch.zeros(3, 0), flips, travel=0)[1].shape == (3, 0)
 
 
 def test_a_mirrored_video_gets_the_same_coverage():
@@ -283,12 +289,12 @@ def test_a_mirrored_video_gets_the_same_coverage():
     x, m = torch.from_numpy(inputs), torch.from_numpy(cues)
     with torch.no_grad():  # the first view is the frame as it is; coverage is the views' mean
         np.testing.assert_allclose(features[:, 0], model.frame.features(x, m), atol=1e-5)
-        views = [model.frame(*mirrored(x, m, torch.tensor(f).expand(30, 2), travel=True))
+        views = [model.frame(*mirrored(x, m, torch.tensor(f).expand(30, 2), travel=4))
                  for f in MIRRORS]
     np.testing.assert_allclose(coverage, torch.stack(views).mean(0), atol=1e-6)
     assert np.abs(coverage - views[0].numpy()).max() > 1e-4
     # Mirrored left-right, each view becomes another one; the predictions stay.
-    lr = mirrored(x, m, torch.tensor([[True, False]]).expand(30, 2), travel=True)
+    lr = mirrored(x, m, torch.tensor([[True, False]]).expand(30, 2), travel=4)
     coverage_lr, features_lr = model.frame_outputs(lr[0].numpy(), lr[1].numpy())
     np.testing.assert_allclose(coverage_lr, coverage, atol=1e-6)
     np.testing.assert_allclose(features_lr[:, [1, 0, 3, 2]], features, atol=1e-5)
@@ -566,6 +572,20 @@ def test_depth_scale_input_of_a_simulated_procedure(two_procedures):
     assert (path / "cache" / "medians-tiny.npy").is_file()
     again = procedure_samples(path, replace(config, input_depth="predicted"), None, "tiny")
     assert np.array_equal(again.scale, predicted.scale)
+
+
+def test_chained_travel_input_of_a_simulated_procedure(two_procedures):
+    """travel_hops adds the travel over that many travel gaps, chained from the cached pairs."""
+    torch.manual_seed(0)
+    depth_model = DepthModel(TINY).eval()
+    path = two_procedures / "proc_0000"
+    config = replace(SMALL, travel_gap=2, travel_hops=3)
+    samples = procedure_samples(path, config, depth_model, "tiny")
+    assert samples.travel.shape == (len(samples.inputs), 8) and config.cue_size == 8
+    relative = np.load(path / "cache" / "relative-tiny-2.npy")
+    np.testing.assert_allclose(samples.travel[:, :4], travel_features(relative, len(relative) + 2))
+    np.testing.assert_allclose(samples.travel[:, 4:], travel_features(
+        relative[4:] @ relative[2:-2] @ relative[:-4], len(relative) + 2), atol=1e-6)
 
 
 def test_eval_coverage_with_a_depth_checkpoint_as_model(tmp_path, two_procedures):

@@ -245,9 +245,9 @@ def test_learned_stage_computes_a_travel_gap_its_depth_stage_lacks(pipeline_run,
 
 def test_networks_reading_the_field_of_view_and_scale_get_those_of_the_run(procedure,
                                                                             tmp_path):
-    """Coverage networks trained with field_of_view='predicted' and depth_scale (untrained
-    here) read each frame's travel, the field of view of the run's intrinsics.json, then the
-    frame's depth scale against the video's, from the run's depth."""
+    """Coverage networks trained with travel_hops, field_of_view='predicted' and depth_scale
+    (untrained here) read each frame's travel, its travel over the hops chained, the field of
+    view of the run's intrinsics.json, then the frame's depth scale against the video's."""
     from learned.checkpoint import file_tag
     from learned.checkpoints import SHIPPED_DEPTH
     from learned.config import COVERAGE_PRESETS
@@ -258,7 +258,7 @@ def test_networks_reading_the_field_of_view_and_scale_get_those_of_the_run(proce
 
     torch.manual_seed(0)
     coverage = CoverageModel(replace(COVERAGE_PRESETS["fast"], field_of_view="predicted",
-                                     depth_scale=True))
+                                     depth_scale=True, travel_hops=4))
     models = Models(load_depth_model(SHIPPED_DEPTH), coverage,
                     {"depth": file_tag(SHIPPED_DEPTH), "coverage": "untrained"})
     with _OneThread():
@@ -270,7 +270,9 @@ def test_networks_reading_the_field_of_view_and_scale_get_those_of_the_run(proce
     K = np.array([[network["fx"], 0, network["cx"]], [0, network["fy"], network["cy"]],
                   [0, 0, 1]])
     with np.load(work / W.RELATIVE) as data:
-        travel = travel_features(data["gap3"], len(depth))  # 8 frames at 30 fps: 3 at 10 fps
+        relative = data["gap3"]  # 8 frames at 30 fps: 3 at 10 fps
+    travel = np.concatenate([travel_features(relative, len(depth)), travel_features(
+        relative[9:] @ relative[6:-3] @ relative[3:-6] @ relative[:-9], len(depth))], axis=1)
     view = view_values(K, depth.shape[2], depth.shape[1], len(depth))
     region = cv2.imread(str(work / W.REGION), cv2.IMREAD_GRAYSCALE) > 0
     inputs = normalise_depth(depth, region, (coverage.config.height, coverage.config.width))
@@ -278,9 +280,10 @@ def test_networks_reading_the_field_of_view_and_scale_get_those_of_the_run(proce
     scale = np.log(medians / np.median(medians))[:, None]
     expected = coverage.frame_outputs(inputs, np.concatenate([travel, view, scale], axis=1))[1]
     np.testing.assert_allclose(features, expected, atol=1e-5)
-    for blind in ([travel, 0 * view, scale], [travel, view, 0 * scale]):
+    for blind in ([travel, 0 * view, scale], [travel, view, 0 * scale],
+                  [travel[:, :4], 0 * travel[:, 4:], view, scale]):
         blind = coverage.frame_outputs(inputs, np.concatenate(blind, axis=1))[1]
-        assert np.abs(features - blind).max() > 1e-3  # the view and the scale are read
+        assert np.abs(features - blind).max() > 1e-3  # the view, scale, chained travel read
 
 
 # --- resuming a work directory ---------------------------------------------------------------

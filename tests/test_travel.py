@@ -7,7 +7,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from hybrid.types import InputError
-from learned.travel import MAX_LOG_SPEED, travel_features
+from learned.travel import MAX_LOG_SPEED, chain_relative, travel_features
 
 
 def relative_from(poses: np.ndarray, gap: int) -> np.ndarray:
@@ -91,3 +91,21 @@ def test_bad_relative_poses_are_input_errors():
     bad[3, 0, 3] = np.nan
     with pytest.raises(InputError, match="clip.mp4: NaN"):
         travel_features(bad, 10, name="clip.mp4")
+
+
+def test_chained_relative_poses_are_those_of_the_long_pairs():
+    """Chaining hops of gap-g pairs on a turning path gives the relative poses of the pairs
+    (t, t + hops g) that the true poses give directly."""
+    frames, gap, hops = 60, 4, 5
+    poses = np.tile(np.eye(4), (frames, 1, 1))
+    poses[:, :3, :3] = Rotation.from_euler("yx", np.column_stack(
+        [2.0 * np.arange(frames), np.sin(np.arange(frames) / 5)]), degrees=True).as_matrix()
+    poses[:, :3, 3] = np.column_stack([0.03 * np.arange(frames) ** 1.3,
+                                       np.sin(np.arange(frames) / 7), -0.1 * np.arange(frames)])
+    chained = chain_relative(relative_from(poses, gap), gap, hops)
+    assert chained.shape == (frames - gap * hops, 4, 4)
+    np.testing.assert_allclose(chained, relative_from(poses, gap * hops), atol=1e-9)
+    np.testing.assert_allclose(chain_relative(relative_from(poses, gap), gap, 1),
+                               relative_from(poses, gap))
+    with pytest.raises(InputError, match="5 hops of 4 frames"):
+        chain_relative(relative_from(poses[:20], gap), gap, hops)
