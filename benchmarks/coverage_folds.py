@@ -5,7 +5,8 @@ after the last; this prints each finished fold's metrics on its own held-out pro
 run's data, config and fold split), so that a variant stopped after a fold or two can be
 compared fold by fold with another run. Then, pooled over the finished folds, the default
 (1, 4) cm pair's error by kind of frame: true coverage 0 or not, and the sign of the travel
-input's z (z > 0: moving along the view, as a camera looking back during a withdrawal does).
+input's z (z > 0: moving along the view, as a camera looking back during a withdrawal does);
+with --training, the same over each fold's training procedures, for the fold models' fit.
 
     python benchmarks/coverage_folds.py --run data/runs/coverage-base0 --run data/runs/coverage-hops
 """
@@ -42,10 +43,12 @@ def by_kind(pred: np.ndarray, true: np.ndarray, z: np.ndarray) -> str:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--run", type=Path, action="append", required=True)
+    parser.add_argument("--training", action="store_true",
+                        help="also the error by kind on each fold's training procedures")
     args = parser.parse_args()
     torch.set_num_threads(1)
     for run in args.run:
-        rows, pooled = {}, []
+        rows, pooled, trained = {}, [], []
         record = json.loads((run / "record.json").read_text())
         config = CoverageConfig.from_dict(record["config"])
         samples = load_samples([Path(p) for p in record["data"]], config,
@@ -62,10 +65,16 @@ def main() -> None:
                 pooled.append((frame[:, 1], samples[i].frame_labels[:, 1],
                                samples[i].travel[:, 2]))
             rows[f"fold {k}"] = coverage_metrics(predictions)
+            for i in sorted(set(range(len(samples))) - set(held)) if args.training else []:
+                trained.append((predict(model, samples[i])[0][:, 1],
+                                samples[i].frame_labels[:, 1], samples[i].travel[:, 2]))
         print(f"{run}:\n{format_table(rows)}")
         if pooled and config.travel_gap:
             print("(1, 4) cm per kind of frame, the finished folds pooled:")
             print(by_kind(*(np.concatenate(column) for column in zip(*pooled, strict=True))))
+        if trained:
+            print("the same on the folds' training procedures:")
+            print(by_kind(*(np.concatenate(column) for column in zip(*trained, strict=True))))
 
 
 if __name__ == "__main__":

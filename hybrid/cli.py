@@ -227,6 +227,16 @@ def _opt(path: Path | None) -> str | None:
     return None if path is None else str(path)
 
 
+def _with_options(overrides: dict, **options) -> dict:
+    """--set overrides and the command's own options together; a field given both ways is an
+    error (the option's value is used only if given)."""
+    given = {k: v for k, v in options.items() if v is not None}
+    if clash := sorted(given.keys() & overrides.keys()):
+        raise ValueError(f"--set {clash[0]}=... repeats --{clash[0].replace('_', '-')}; give "
+                         f"it once")
+    return {**overrides, **given}
+
+
 def _yes(value) -> str:
     return "n/a" if value is None else ("yes" if value else "no")
 
@@ -296,9 +306,9 @@ def train_depth(
 
     check_fps(fps)  # 0 would read as "the inputs' own" in the config
     try:
-        config = depth_config(preset, steps=steps, batch_size=batch_size, seed=seed,
-                              init=None if init is None else str(init), input_fps=fps,
-                              **parse_overrides(set_ or []))
+        config = depth_config(preset, **_with_options(
+            parse_overrides(set_ or []), steps=steps, batch_size=batch_size, seed=seed,
+            init=None if init is None else str(init), input_fps=fps))
     except ValueError as err:
         raise InputError(str(err)) from err
     typer.echo(str(run(data, out, config, val or [], device=pick_device(device))))
@@ -389,8 +399,8 @@ def train_coverage(
     from learned.device import pick_device
 
     try:
-        config = coverage_config(preset, folds=folds, seed=seed,
-                                 **parse_overrides(set_ or [], COVERAGE_PRESETS["fast"]))
+        config = coverage_config(preset, **_with_options(
+            parse_overrides(set_ or [], COVERAGE_PRESETS["fast"]), folds=folds, seed=seed))
     except ValueError as err:
         raise InputError(str(err)) from err
     typer.echo(str(run(data, out, config, depth_checkpoint or _shipped_checkpoint(),

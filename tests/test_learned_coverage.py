@@ -457,6 +457,14 @@ def test_coverage_config_overrides():
         coverage_config("huge")
 
 
+def test_a_setting_given_by_option_and_by_set_is_a_clear_error(tmp_path):
+    for args in (["train-coverage", "--folds", "2", "--set", "folds=0"],
+                 ["train-depth", "--seed", "1", "--set", "seed=2"]):
+        result = runner.invoke(app, [*args, "--data", str(tmp_path), "--out", str(tmp_path / "o")])
+        assert_clean_error(result, f"--set {args[-1].split('=')[0]}=", args[1])
+    assert not (tmp_path / "o").exists()
+
+
 # --- commands on simulated procedures -----------------------------------------------------
 
 
