@@ -282,7 +282,8 @@ class CoverageConfig:
 
     @property
     def travel_size(self) -> int:
-        """Per-frame travel values fed to the per-frame network (0 when travel_gap is 0)."""
+        """Per-frame travel values fed to the per-frame network: 4, 8 with travel_hops, 0 when
+        travel_gap is 0."""
         return TRAVEL_SIZE * (1 + (self.travel_hops > 0)) if self.travel_gap else 0
 
     @property
