@@ -25,17 +25,9 @@ import numpy as np
 from hybrid.dataset import Procedure
 from learned.checkpoint import file_tag
 from learned.checkpoints import SHIPPED_DEPTH
+from learned.coverage_data import true_depth
+from learned.coverage_nets import region_medians
 from learned.train import expand_inputs
-
-
-def true_medians(proc: Procedure) -> np.ndarray:
-    """(N,) median of each frame's simulated depth (no surface counts as the farthest wall, as
-    in the coverage networks' true-depth inputs)."""
-    medians = []
-    for i in range(proc.num_frames):
-        depth = proc.depth(i)
-        medians.append(np.median(np.where(depth > 0, depth, depth.max())))
-    return np.array(medians)
 
 
 def main() -> None:
@@ -51,7 +43,8 @@ def main() -> None:
         if not cached.is_file():
             raise SystemExit(f"{cached} is missing: run c2d2 train-coverage --set "
                              f"depth_scale=true on {path} first")
-        pred, true = np.log(np.load(cached)), np.log(true_medians(Procedure.open(path)))
+        pred = np.log(np.load(cached))
+        true = np.log(region_medians(*true_depth(Procedure.open(path))))
         slope, intercept = np.polyfit(true, pred, 1)
         row = (np.corrcoef(pred, true)[0, 1], slope, true.std(),
                np.std(pred - (slope * true + intercept)), np.mean(pred - true))

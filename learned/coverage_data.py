@@ -97,7 +97,7 @@ def procedure_samples(path: Path, config: CoverageConfig, depth_model: DepthMode
     network = functools.cache(lambda: _network_outputs(proc, depth_model, missing_depth,
                                                        tuple(gaps), progress))
     depth = functools.cache(lambda: _predicted_depth(*network()) if predicted
-                            else _true_depth(proc))
+                            else true_depth(proc))
     inputs = _cached(inputs_path, lambda: normalise_depth(
         *depth(), (config.height, config.width), name=str(proc.path),
         by_median=config.median_normalise).astype(np.float16))
@@ -135,7 +135,7 @@ def procedure_samples(path: Path, config: CoverageConfig, depth_model: DepthMode
         segment_labels=truth.segment_labels())
 
 
-def _true_depth(proc: Procedure) -> tuple[np.ndarray, np.ndarray]:
+def true_depth(proc: Procedure) -> tuple[np.ndarray, np.ndarray]:
     """The simulator's depth (N, H, W) and its region (all of the image; the ablation)."""
     depth = np.stack([proc.depth(i) for i in range(proc.num_frames)])
     # No surface (looking out of the open rectum end): as far as the frame's farthest wall.
