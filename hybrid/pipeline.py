@@ -236,7 +236,7 @@ class _Run:
         withdrawal, name = self.config.reconstruction.lumen.withdrawal, str(self.path(W.RELATIVE))
         travel = [travel_features(relative, count, withdrawal, name=name)]
         if hops := self.models.coverage.config.travel_hops:
-            travel.append(travel_features(chain_relative(relative, gap, hops), count,
+            travel.append(travel_features(chain_relative(relative, gap, hops, name), count,
                                           withdrawal, name=name))
         return np.concatenate(travel, axis=1)
 

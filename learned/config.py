@@ -217,10 +217,10 @@ class CoverageConfig:
     """Frames (at frame_rate) between the motion network's pair that gives each frame's
     direction of travel, an input of the per-frame network besides the depth
     (learned.travel); 0: depth only, as in the paper."""
-    travel_hops: int = 0
+    travel_hops: int = 8
     """Also the travel over this many travel gaps, chained from the motion network's pairs
-    (learned.travel.chain_relative), as four more cues: a longer baseline that a pause or a
-    jitter does not flip (0: off)."""
+    (learned.travel.chain_relative), as four more cues: a longer baseline (8 x 8 frames,
+    2.1 s at 30 fps) than the travel gap's (0: off)."""
     field_of_view: str = "none"
     """Camera input of the per-frame network besides the depth: 'predicted' (the median
     intrinsics of the motion network's consecutive pairs, as `c2d2 run` has them), 'true' (the
@@ -310,6 +310,7 @@ class CoverageConfig:
         known = {f.name for f in fields(cls)}
         values = {k: tuple(v) if isinstance(v, list) else v for k, v in data.items() if k in known}
         values.setdefault("travel_gap", 0)  # saved before the travel input: depth only
+        values.setdefault("travel_hops", 0)  # saved before the longer travel
         return cls(**values)
 
 

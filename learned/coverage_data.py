@@ -110,7 +110,8 @@ def procedure_samples(path: Path, config: CoverageConfig, depth_model: DepthMode
         relative = _cached(relative_path, lambda: network()[1].relative[config.travel_gap])
         travel = travel_features(relative, len(inputs), name=str(proc.path))
         if config.travel_hops:
-            chained = chain_relative(relative, config.travel_gap, config.travel_hops)
+            chained = chain_relative(relative, config.travel_gap, config.travel_hops,
+                                     name=str(proc.path))
             travel = np.concatenate([travel, travel_features(chained, len(inputs),
                                                              name=str(proc.path))], axis=1)
     else:

@@ -48,15 +48,16 @@ def travel_features(relative: np.ndarray, frames: int, withdrawal: bool = True,
     return values[picks].astype(np.float32)
 
 
-def chain_relative(relative: np.ndarray, gap: int, hops: int) -> np.ndarray:
+def chain_relative(relative: np.ndarray, gap: int, hops: int,
+                   name: str = "relative poses") -> np.ndarray:
     """(M - gap (hops - 1), 4, 4) relative poses of the pairs (t, t + hops gap), chained from
-    the M relative poses of the pairs (t, t + gap): a longer baseline, whose direction a pause
-    or a jitter does not flip."""
+    the M relative poses of the pairs (t, t + gap): a longer baseline."""
     relative = np.asarray(relative, dtype=np.float64)
     count = len(relative) - gap * (hops - 1)
     if hops < 1 or count < 1:
-        raise InputError(f"{hops} hops of {gap} frames need more than {gap * (hops - 1)} "
-                         f"relative poses, got {len(relative)}")
+        raise InputError(f"{name}: the travel over {hops} hops of {gap} frames needs more than "
+                         f"{gap * hops} frames, got {len(relative) + gap}; give a longer video, "
+                         f"or train networks with fewer hops (--set travel_hops=...)")
     chained = relative[:count]
     for hop in range(1, hops):
         chained = relative[hop * gap:hop * gap + count] @ chained

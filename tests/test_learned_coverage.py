@@ -50,8 +50,9 @@ SMALL = replace(COVERAGE_PRESETS["fast"], height=16, width=20, frame_channels=(4
                 segment_frames=20, segment_stride=5, segment_channels=(4, 4, 4, 4, 4, 4),
                 segment_kernels=(1, 3, 3, 3, 3, 3), segment_strides=(1, 1, 1, 1, 1, 1),
                 frame_epochs=30, frame_batch=16, frame_lr=1e-2, segment_epochs=150,
-                segment_batch=8, segment_lr=1e-2)
-"""The fast coverage preset shrunk for tests (its preset name stays 'fast')."""
+                segment_batch=8, segment_lr=1e-2, travel_hops=0)
+"""The fast coverage preset shrunk for tests (its preset name stays 'fast'), with the short
+travel only: the toy samples carry one block of travel values."""
 
 
 def toy_samples(count: int = 3, frames: int = 60, seed: int = 0) -> list[ProcedureSamples]:
@@ -127,10 +128,11 @@ def test_paper_per_frame_net_is_resnet50_with_2048_features():
     config = COVERAGE_PRESETS["paper"]
     model = CoverageModel(config)
     # ResNet-50 without its classifier has 23,508,032 parameters; ours takes the depth and
-    # 4 travel planes (7x7x5x64 stem weights instead of 7x7x3x64) and ends in 3 outputs.
-    assert count_parameters(model.frame.encoder) == 23_508_032 + 7 * 7 * 2 * 64
+    # 8 travel planes, short and chained (7x7x9x64 stem weights instead of 7x7x3x64), and
+    # ends in 3 outputs.
+    assert count_parameters(model.frame.encoder) == 23_508_032 + 7 * 7 * 6 * 64
     assert model.frame.head.in_features == 2048 and model.frame.head.out_features == 3
-    travel = torch.tensor([[0.0, 0.6, -0.8, 0.5], [0.0, 0.6, 0.8, 0.5]])
+    travel = torch.tensor([[0.0, 0.6, -0.8, 0.5] * 2, [0.0, 0.6, 0.8, 0.5] * 2])
     features = model.frame.eval().features(torch.zeros(2, 1, 64, 64), travel)
     assert features.shape == (2, 2048) and not torch.allclose(features[0], features[1])
     depth_only = CoverageModel(replace(config, travel_gap=0))  # the paper's: depth alone
@@ -478,11 +480,25 @@ def two_procedures(tmp_path_factory, sim_config) -> Path:
     return root
 
 
+def test_procedures_shorter_than_the_chained_travel_are_a_clear_error(tmp_path,
+                                                                     two_procedures):
+    """The presets chain 8 hops of 8 frames; 40-frame procedures cannot give that travel."""
+    depth = save_model(tmp_path / "depth.safetensors", DepthModel(TINY), TINY.to_dict())
+    result = runner.invoke(app, ["train-coverage", "--data", str(two_procedures), "--out",
+                                 str(tmp_path / "run"), "--depth-checkpoint", str(depth),
+                                 "--set", "segment_frames=20"])
+    assert result.exit_code != 0 and "Traceback" not in result.output, result.output
+    error = result.stderr[result.stderr.index("error: "):]  # after the progress bar
+    for name in (str(two_procedures / "proc_0000"), "8 hops of 8 frames",
+                 "needs more than 64 frames, got 40", "travel_hops"):
+        assert name in error, error
+
+
 def test_train_eval_and_adapt_commands(tmp_path, two_procedures):
     depth = save_model(tmp_path / "depth.safetensors", DepthModel(TINY), TINY.to_dict())
     run = tmp_path / "run"
     sets = ["segment_frames=20", "segment_stride=5", "frame_epochs=1", "segment_epochs=2",
-            "frame_batch=16"]
+            "frame_batch=16", "travel_hops=2"]  # 40-frame procedures: 2 hops of 8 frames
     args = ["train-coverage", "--data", str(two_procedures), "--out", str(run), "--folds", "2",
             "--depth-checkpoint", str(depth)] + [x for s in sets for x in ("--set", s)]
     result = runner.invoke(app, args)
