@@ -643,3 +643,17 @@ def test_a_depth_only_model_from_before_the_travel_input_still_loads(tmp_path):
     loaded = load_coverage_model(path)
     assert loaded.config == old
     assert loaded.config.travel_size == 0 and loaded.frame.encoder.stem[0].in_channels == 1
+
+
+def test_a_model_from_before_the_longer_travel_still_loads(tmp_path):
+    """Networks saved before travel_hops existed read the short travel only (4 cues)."""
+    old = replace(SMALL, travel_hops=0)
+    model = CoverageModel(old)
+    saved = old.to_dict()
+    del saved["travel_hops"]
+    path = tmp_path / "old.safetensors"
+    save_checkpoint(path, {"frame": model.frame, "segment": model.segment}, saved, 0,
+                    kind="coverage")
+    loaded = load_coverage_model(path)
+    assert loaded.config == old and COVERAGE_PRESETS["fast"].travel_hops == 8
+    assert loaded.config.travel_size == 4 and loaded.frame.encoder.stem[0].in_channels == 5
