@@ -9,7 +9,10 @@ The --train procedures must not include any of the run's (checked by name).
 
     python benchmarks/coverage_heldout.py --run data/runs/coverage-hops --fold 0 \
         --train data/cov-pink-short --train data/cov-dusk-short --count 38 \
-        --out data/runs/short-fold0.safetensors
+        --out data/runs/coverage-short76.safetensors
+
+The model is kept at --out, with the names of its training procedures beside it (.json), and
+reused when they match.
 """
 
 from __future__ import annotations
@@ -19,6 +22,7 @@ import json
 import time
 from pathlib import Path
 
+from learned.checkpoint import file_tag
 from learned.config import CoverageConfig
 from learned.coverage_eval import Predictions, coverage_metrics, format_table
 from learned.coverage_nets import load_coverage_model
@@ -39,31 +43,42 @@ def main() -> None:
     record = json.loads((args.run / "record.json").read_text())
     config = CoverageConfig.from_dict(record["config"])
     depth = Path(record["depth_checkpoint"]["path"])
-    samples = load_samples([Path(p) for p in record["data"]], config, depth, progress=True)
-    folds = fold_split(len(samples), config.folds, config.seed)
-    chosen = range(len(folds)) if args.fold is None else [args.fold]
-    folders = [expand_inputs([folder])[:args.count] for folder in args.train]
-    train = load_samples([p for paths in folders for p in paths], config, depth, progress=True)
-    clash = {s.name for s in train} & {s.name for s in samples}
-    if clash:
-        raise SystemExit(f"error: --train holds held-out procedures: {sorted(clash)}")
+    if file_tag(depth) != record["depth_checkpoint"]["sha256_12"]:
+        raise SystemExit(f"error: {depth} is not the depth model of {args.run}")
+    folds = fold_split(len(record["procedures"]), config.folds, config.seed)
+    if args.fold is not None and not 0 <= args.fold < len(folds):
+        raise SystemExit(f"error: --fold must be 0-{len(folds) - 1} for {args.run}")
+    paths = [p for folder in args.train for p in expand_inputs([folder])[:args.count]]
+    names = [f"{p.parent.name}/{p.name}" for p in paths]
+    if clash := sorted(set(names) & set(record["procedures"])):
+        raise SystemExit(f"error: --train holds procedures of {args.run}: {clash}")
+    sidecar = args.out.with_suffix(".json")
     if args.out.is_file():
+        trained_on = json.loads(sidecar.read_text())["procedures"] if sidecar.is_file() else None
+        if trained_on != names:
+            raise SystemExit(f"error: {args.out} was not trained on these --train procedures; "
+                             f"remove it or choose another --out")
         model = load_coverage_model(args.out)
     else:
+        train = load_samples(paths, config, depth, progress=True)
         tic = time.time()
         model = fit_model(train, config, lambda entry: None, progress=True)
         model.save(args.out)
+        sidecar.write_text(json.dumps({"procedures": names}, indent=1) + "\n")
         print(f"fitted on {len(train)} procedures ({sum(len(s.inputs) for s in train)} "
               f"frames) in {time.time() - tic:.0f} s")
+    samples = load_samples([Path(p) for p in record["data"]], config, depth, progress=True)
+    if [s.name for s in samples] != record["procedures"]:
+        raise SystemExit(f"error: the procedures under {record['data']} are not those of "
+                         f"{args.run}")
     ours, theirs = Predictions(), Predictions()
-    for k in chosen:
+    for k in range(len(folds)) if args.fold is None else [args.fold]:
         held = [samples[i] for i in folds[k]]
         evaluate(load_coverage_model(args.run / f"fold-{k}.safetensors"), held, theirs)
         evaluate(model, held, ours)
     which = "all folds" if args.fold is None else f"fold {args.fold}"
-    print(format_table({f"{args.run.name}, {which}": coverage_metrics(theirs),
-                        f"{args.out.stem}, {which}": coverage_metrics(ours)}))
-
+    print(format_table({f"the run's fold models, {which}": coverage_metrics(theirs),
+                        f"trained on --train, {which}": coverage_metrics(ours)}))
 
 if __name__ == "__main__":
     main()

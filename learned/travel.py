@@ -3,8 +3,9 @@ that tells a camera looking down the lumen from one looking back towards the rec
 
 A depth image looking towards the cecum and one looking back towards the rectum are alike,
 but during a withdrawal the first moves backwards (-z) and the second forwards (+z). The
-per-frame coverage network takes this as four numbers besides the depth (an input the paper
-does not have; `CoverageConfig.travel_gap = 0` gives the paper's depth-only network).
+per-frame coverage network takes this as four numbers besides the depth, and four more over a
+baseline chained from the same pairs (`CoverageConfig.travel_hops`); an input the paper does
+not have (`CoverageConfig.travel_gap = 0` gives the paper's depth-only network).
 """
 
 from __future__ import annotations
@@ -52,10 +53,12 @@ def chain_relative(relative: np.ndarray, gap: int, hops: int,
                    name: str = "relative poses") -> np.ndarray:
     """(M - gap (hops - 1), 4, 4) relative poses of the pairs (t, t + hops gap), chained from
     the M relative poses of the pairs (t, t + gap): a longer baseline."""
+    if hops < 1:
+        raise ValueError(f"hops must be at least 1, got {hops}")
     relative = np.asarray(relative, dtype=np.float64)
     count = len(relative) - gap * (hops - 1)
-    if hops < 1 or count < 1:
-        raise InputError(f"{name}: the travel over {hops} hops of {gap} frames needs more than "
+    if count < 1:
+        raise InputError(f"{name}: the travel over {hops} hops of {gap} frame(s) needs more than "
                          f"{gap * hops} frames, got {len(relative) + gap}; give a longer video, "
                          f"or train networks with fewer hops (--set travel_hops=...)")
     chained = relative[:count]

@@ -489,7 +489,7 @@ def test_procedures_shorter_than_the_chained_travel_are_a_clear_error(tmp_path,
                                  "--set", "segment_frames=20"])
     assert result.exit_code != 0 and "Traceback" not in result.output, result.output
     error = result.stderr[result.stderr.index("error: "):]  # after the progress bar
-    for name in (str(two_procedures / "proc_0000"), "8 hops of 8 frames",
+    for name in (str(two_procedures / "proc_0000"), "8 hops of 8 frame(s)",
                  "needs more than 64 frames, got 40", "travel_hops"):
         assert name in error, error
 
@@ -647,7 +647,7 @@ def test_a_depth_only_model_from_before_the_travel_input_still_loads(tmp_path):
 
 def test_a_model_from_before_the_longer_travel_still_loads(tmp_path):
     """Networks saved before travel_hops existed read the short travel only (4 cues)."""
-    old = replace(SMALL, travel_hops=0)
+    old = SMALL  # travel_hops 0
     model = CoverageModel(old)
     saved = old.to_dict()
     del saved["travel_hops"]

@@ -107,5 +107,5 @@ def test_chained_relative_poses_are_those_of_the_long_pairs():
     np.testing.assert_allclose(chained, relative_from(poses, gap * hops), atol=1e-9)
     np.testing.assert_allclose(chain_relative(relative_from(poses, gap), gap, 1),
                                relative_from(poses, gap))
-    with pytest.raises(InputError, match="5 hops of 4 frames"):
+    with pytest.raises(InputError, match=r"5 hops of 4 frame\(s\)"):
         chain_relative(relative_from(poses[:20], gap), gap, hops)
