@@ -14,16 +14,14 @@ with --training, the same over each fold's training procedures, for the fold mod
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
 import numpy as np
 import torch
 
-from learned.config import CoverageConfig
 from learned.coverage_eval import Predictions, coverage_metrics, format_table
 from learned.coverage_nets import load_coverage_model
-from learned.coverage_train import fold_split, load_samples, predict
+from learned.coverage_train import load_run, predict
 
 
 def by_kind(pred: np.ndarray, true: np.ndarray, z: np.ndarray) -> str:
@@ -49,11 +47,8 @@ def main() -> None:
     torch.set_num_threads(1)
     for run in args.run:
         rows, pooled, trained = {}, [], []
-        record = json.loads((run / "record.json").read_text())
-        config = CoverageConfig.from_dict(record["config"])
-        samples = load_samples([Path(p) for p in record["data"]], config,
-                               Path(record["depth_checkpoint"]["path"]))
-        for k, held in enumerate(fold_split(len(samples), config.folds, config.seed)):
+        _, config, samples, folds = load_run(run)
+        for k, held in enumerate(folds):
             path = run / f"fold-{k}.safetensors"
             if not path.is_file():
                 continue

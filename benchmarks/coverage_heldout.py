@@ -22,11 +22,9 @@ import json
 import time
 from pathlib import Path
 
-from learned.checkpoint import file_tag
-from learned.config import CoverageConfig
 from learned.coverage_eval import Predictions, coverage_metrics, format_table
 from learned.coverage_nets import load_coverage_model
-from learned.coverage_train import evaluate, fit_model, fold_split, load_samples
+from learned.coverage_train import evaluate, fit_model, load_run, load_samples
 from learned.train import expand_inputs
 
 
@@ -40,12 +38,7 @@ def main() -> None:
                         help="take the first COUNT procedures of each --train folder")
     parser.add_argument("--out", type=Path, required=True, help="where to save the model")
     args = parser.parse_args()
-    record = json.loads((args.run / "record.json").read_text())
-    config = CoverageConfig.from_dict(record["config"])
-    depth = Path(record["depth_checkpoint"]["path"])
-    if file_tag(depth) != record["depth_checkpoint"]["sha256_12"]:
-        raise SystemExit(f"error: {depth} is not the depth model of {args.run}")
-    folds = fold_split(len(record["procedures"]), config.folds, config.seed)
+    record, config, samples, folds = load_run(args.run, progress=True)
     if args.fold is not None and not 0 <= args.fold < len(folds):
         raise SystemExit(f"error: --fold must be 0-{len(folds) - 1} for {args.run}")
     paths = [p for folder in args.train for p in expand_inputs([folder])[:args.count]]
@@ -60,17 +53,14 @@ def main() -> None:
                              f"remove it or choose another --out")
         model = load_coverage_model(args.out)
     else:
-        train = load_samples(paths, config, depth, progress=True)
+        train = load_samples(paths, config, Path(record["depth_checkpoint"]["path"]),
+                             progress=True)
         tic = time.time()
         model = fit_model(train, config, lambda entry: None, progress=True)
         model.save(args.out)
         sidecar.write_text(json.dumps({"procedures": names}, indent=1) + "\n")
         print(f"fitted on {len(train)} procedures ({sum(len(s.inputs) for s in train)} "
               f"frames) in {time.time() - tic:.0f} s")
-    samples = load_samples([Path(p) for p in record["data"]], config, depth, progress=True)
-    if [s.name for s in samples] != record["procedures"]:
-        raise SystemExit(f"error: the procedures under {record['data']} are not those of "
-                         f"{args.run}")
     ours, theirs = Predictions(), Predictions()
     for k in range(len(folds)) if args.fold is None else [args.fold]:
         held = [samples[i] for i in folds[k]]

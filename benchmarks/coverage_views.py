@@ -15,17 +15,15 @@ four-view predictions after a running mean and a running median over time, for e
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
 import numpy as np
 import torch
 from scipy.ndimage import median_filter, uniform_filter1d
 
-from learned.config import CoverageConfig
 from learned.coverage_eval import Predictions, coverage_metrics, format_table
 from learned.coverage_nets import MIRRORS, CoverageModel, load_coverage_model
-from learned.coverage_train import fold_split, load_samples
+from learned.coverage_train import load_run
 
 
 def one_view_segments(model: CoverageModel, features: np.ndarray, starts: list[int]
@@ -40,14 +38,11 @@ def main() -> None:
     parser.add_argument("--smooth", type=int, nargs="*", default=[9, 31, 61])
     args = parser.parse_args()
     torch.set_num_threads(1)
-    record = json.loads((args.run / "record.json").read_text())
-    config = CoverageConfig.from_dict(record["config"])
-    samples = load_samples([Path(p) for p in record["data"]], config,
-                           Path(record["depth_checkpoint"]["path"]))
+    _, _, samples, folds = load_run(args.run)
     ways = {"one view": Predictions(), "four views": Predictions(),
             "mean features": Predictions()}
     smoothed: dict[tuple[str, int], list[np.ndarray]] = {}
-    for k, held in enumerate(fold_split(len(samples), config.folds, config.seed)):
+    for k, held in enumerate(folds):
         model = load_coverage_model(args.run / f"fold-{k}.safetensors")
         for i in held:
             s = samples[i]

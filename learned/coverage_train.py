@@ -208,6 +208,21 @@ def load_samples(data: list[Path], config: CoverageConfig, depth_checkpoint: Pat
             for p in tqdm(paths, desc="inputs and labels", disable=not progress)]
 
 
+def load_run(run: Path, progress: bool = False
+             ) -> tuple[dict, CoverageConfig, list[ProcedureSamples], list[np.ndarray]]:
+    """A `train_coverage` run's record, config, samples and fold split (held-out indices), its
+    procedures and depth model checked against the record."""
+    record = json.loads((Path(run) / "record.json").read_text())
+    config = CoverageConfig.from_dict(record["config"])
+    depth = Path(record["depth_checkpoint"]["path"])
+    if file_tag(depth) != record["depth_checkpoint"]["sha256_12"]:
+        raise InputError(f"{depth} is no longer the depth model {run} was trained on")
+    samples = load_samples([Path(p) for p in record["data"]], config, depth, progress)
+    if [s.name for s in samples] != record["procedures"]:
+        raise InputError(f"the procedures under {record['data']} are no longer those of {run}")
+    return record, config, samples, fold_split(len(samples), config.folds, config.seed)
+
+
 def train_coverage(data: list[Path], out: Path, config: CoverageConfig,
                    depth_checkpoint: Path, progress: bool = True,
                    device: torch.device | str = "cpu") -> Path:

@@ -34,6 +34,7 @@ from learned.coverage_nets import (
 )
 from learned.coverage_train import (
     fold_split,
+    load_run,
     powered,
     train_frame_net,
     train_segment_net,
@@ -515,6 +516,14 @@ def test_train_eval_and_adapt_commands(tmp_path, two_procedures):
     stamp = (run / "fold-0.safetensors").stat().st_mtime_ns
     assert runner.invoke(app, args).exit_code == 0
     assert (run / "fold-0.safetensors").stat().st_mtime_ns == stamp
+    # The benchmarks read the run back with its fold split; a changed record is refused.
+    record, config, samples, folds = load_run(run)
+    assert config.travel_hops == 2 and [s.name for s in samples] == record["procedures"]
+    assert [f.tolist() for f in folds] == [f.tolist() for f in fold_split(2, 2, 0)]
+    (run / "record.json").write_text(json.dumps({**record, "procedures": ["other/proc"] * 2}))
+    with pytest.raises(InputError, match="no longer those of"):
+        load_run(run)
+    (run / "record.json").write_text(json.dumps(record))
 
     evaluation = tmp_path / "eval"
     result = runner.invoke(app, ["eval-coverage", "--data", str(two_procedures), "--out",
