@@ -79,9 +79,10 @@ def dr_mre(pred: np.ndarray, gt: np.ndarray, mask: np.ndarray | None = None) -> 
     return min(objective(0.5 * (a + b)), values[k])
 
 
-def dom(pred: np.ndarray, gt: np.ndarray, mask: np.ndarray | None = None,
-        pairs: int = 20_000, seed: int = 0) -> float:
-    """Depth order measure: fraction of sampled pixel pairs whose depth order agrees."""
+def order_agreement(pred: np.ndarray, gt: np.ndarray, mask: np.ndarray | None = None,
+                    pairs: int = 20_000, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """Sampled pixel pairs with distinct true depths: the ratio of the larger true depth to the
+    smaller, and whether the predicted order agrees with the true one."""
     valid = _valid(pred, gt, mask)
     p, g = pred[valid], gt[valid]
     if p.size < 2:
@@ -89,8 +90,15 @@ def dom(pred: np.ndarray, gt: np.ndarray, mask: np.ndarray | None = None,
     rng = np.random.default_rng(seed)
     i = rng.integers(0, p.size, pairs)
     j = (i + rng.integers(1, p.size, pairs)) % p.size  # never a pixel with itself
-    keep = g[i] != g[j]  # ties in the ground truth have no order
-    return float(np.mean(np.sign(g[i] - g[j])[keep] == np.sign(p[i] - p[j])[keep]))
+    i, j = i[g[i] != g[j]], j[g[i] != g[j]]  # ties in the ground truth have no order
+    ratio = np.maximum(g[i], g[j]) / np.minimum(g[i], g[j])
+    return ratio, np.sign(g[i] - g[j]) == np.sign(p[i] - p[j])
+
+
+def dom(pred: np.ndarray, gt: np.ndarray, mask: np.ndarray | None = None,
+        pairs: int = 20_000, seed: int = 0) -> float:
+    """Depth order measure: fraction of sampled pixel pairs whose depth order agrees."""
+    return float(np.mean(order_agreement(pred, gt, mask, pairs, seed)[1]))
 
 
 def median_scaled_metrics(pred: np.ndarray, gt: np.ndarray, mask: np.ndarray | None = None

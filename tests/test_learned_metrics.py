@@ -15,6 +15,7 @@ from learned.metrics import (
     median_scaled_metrics,
     mre,
     mre_scale,
+    order_agreement,
     trajectory_errors,
     umeyama_sim3,
 )
@@ -115,6 +116,17 @@ def test_dom_of_a_reversed_order_is_zero():
     gt = np.arange(1.0, 17.0).reshape(4, 4)
     assert dom(1.0 / gt, gt) == 0.0
     assert dom(gt**2, gt) == 1.0
+
+
+def test_order_agreement_hand_case():
+    """Two pixels at true depths 1 and 2 (ratio 2): every sampled pair is that pair, ordered
+    right by a prediction that keeps the order and wrong by one that swaps it; equal true
+    depths have no order and give no pair."""
+    gt = np.array([1.0, 2.0])
+    ratio, agree = order_agreement(np.array([3.0, 5.0]), gt, pairs=50)
+    assert ratio.shape == (50,) and np.all(ratio == 2.0) and agree.all()
+    assert not order_agreement(np.array([5.0, 3.0]), gt, pairs=50)[1].any()
+    assert order_agreement(np.array([1.0, 2.0]), np.ones(2), pairs=50)[0].size == 0
 
 
 def test_median_scaled_metrics_hand_case():
