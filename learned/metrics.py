@@ -90,7 +90,8 @@ def order_agreement(pred: np.ndarray, gt: np.ndarray, mask: np.ndarray | None = 
     rng = np.random.default_rng(seed)
     i = rng.integers(0, p.size, pairs)
     j = (i + rng.integers(1, p.size, pairs)) % p.size  # never a pixel with itself
-    i, j = i[g[i] != g[j]], j[g[i] != g[j]]  # ties in the ground truth have no order
+    keep = g[i] != g[j]  # ties in the ground truth have no order
+    i, j = i[keep], j[keep]
     ratio = np.maximum(g[i], g[j]) / np.minimum(g[i], g[j])
     return ratio, np.sign(g[i] - g[j]) == np.sign(p[i] - p[j])
 
