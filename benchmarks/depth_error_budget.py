@@ -3,7 +3,7 @@
 For the frames `c2d2 eval-depth` scores (24 per procedure, evenly spaced), per procedure and
 pooled:
   - MRE, and MRE after the best power of the prediction per frame (pred^p, p searched from
-    0.8 to 2.5): what is left once the depth map's compression is undone;
+    0.5 to 3): what is left once the depth map's compression is undone;
   - DOM, and its error split by how far apart the two pixels' true depths are (ratio of the
     larger to the smaller): the share of the sampled pairs in each band, the share of them
     ordered right, and what the band adds to 1 - DOM.
@@ -25,7 +25,7 @@ from learned.metrics import mre, order_agreement
 from learned.model import load_depth_model, to_tensor
 from learned.train import expand_inputs
 
-POWERS = np.arange(0.8, 2.501, 0.05)
+POWERS = np.arange(0.5, 3.001, 0.05)
 RATIO_EDGES = (1.0, 1.02, 1.05, 1.1, 1.25, 1.5, 2.0, np.inf)
 
 
@@ -59,13 +59,16 @@ def main() -> None:
         print(f"{seq.name}: MRE {rows[:, 0].mean():.3f}, at the best power {rows[:, 1].mean():.3f} "
               f"(median power {np.median(rows[:, 2]):.2f}), DOM {rows[:, 3].mean():.3f}")
     print(f"all: MRE {np.mean(plain):.3f}, at the best power per frame {np.mean(powered):.3f} "
-          f"(median power {np.median(best):.2f})")
+          f"(median power {np.median(best):.2f}; {np.isin(best, POWERS[[0, -1]]).sum()} of "
+          f"{len(best)} frames at an end of the searched powers)")
     ratio, agree = np.concatenate(ratios), np.concatenate(agreements)
     print(f"DOM (pooled pairs) {agree.mean():.3f}; by true depth ratio of the pair:")
     for lo, hi in zip(RATIO_EDGES[:-1], RATIO_EDGES[1:], strict=True):
         band = (ratio >= lo) & (ratio < hi)
-        print(f"  {lo:.2f}-{hi:.2f}: share {band.mean():.3f}, ordered right "
-              f"{agree[band].mean():.3f}, adds {(~agree[band]).sum() / agree.size:.4f} to 1 - DOM")
+        if band.any():
+            print(f"  {lo:.2f}-{hi:.2f}: share {band.mean():.3f}, ordered right "
+                  f"{agree[band].mean():.3f}, adds {(~agree[band]).sum() / agree.size:.4f} "
+                  "to 1 - DOM")
 
 
 if __name__ == "__main__":
