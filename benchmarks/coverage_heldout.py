@@ -70,5 +70,6 @@ def main() -> None:
     print(format_table({f"the run's fold models, {which}": coverage_metrics(theirs),
                         f"trained on --train, {which}": coverage_metrics(ours)}))
 
+
 if __name__ == "__main__":
     main()

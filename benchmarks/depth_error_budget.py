@@ -18,11 +18,11 @@ import argparse
 from pathlib import Path
 
 import numpy as np
-import torch
 
+from learned.evaluate import scored_depths
 from learned.frames import open_sequence
 from learned.metrics import mre, order_agreement
-from learned.model import load_depth_model, to_tensor
+from learned.model import load_depth_model
 from learned.train import expand_inputs
 
 POWERS = np.arange(0.5, 3.001, 0.05)
@@ -40,11 +40,9 @@ def main() -> None:
     ratios, agreements, plain, powered, best = [], [], [], [], []
     for path in expand_inputs(args.data):
         seq = open_sequence(path, size)
-        picks = np.linspace(0, seq.num_frames - 1, args.frames).round().astype(int)
-        with torch.no_grad():
-            depths = model.depth(to_tensor(np.stack([seq.frame(t) for t in picks])))[:, 0]
+        picks, depths = scored_depths(model, seq, args.frames)
         rows = []
-        for pred, t in zip(depths.numpy().astype(np.float64), picks, strict=True):
+        for pred, t in zip(depths.astype(np.float64), picks, strict=True):
             gt = seq.depth(int(t))
             errors = [mre(pred ** p, gt, seq.region) for p in POWERS]
             ratio, agree = order_agreement(pred, gt, seq.region)

@@ -26,6 +26,17 @@ from learned.model import DepthModel, to_tensor
 DEPTH_KEYS = ("mre", "dr_mre", "dom", "abs_rel", "sq_rel", "rmse", "delta1")
 
 
+def scored_depths(model: DepthModel, seq: FrameSequence, count: int = 24
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """The frames whose depth eval-depth scores (`count`, evenly spaced) and the model's depth
+    of each (count, H, W)."""
+    picks = np.linspace(0, seq.num_frames - 1, count).round().astype(int)
+    with torch.no_grad():
+        depths = model.depth(to_tensor(np.stack([seq.frame(t) for t in picks]),
+                                        device_of(model)))[:, 0].cpu().numpy()
+    return picks, depths
+
+
 def evaluate_sequence(model: DepthModel, seq: FrameSequence, depth_frames: int = 24,
                       trajectory_frames: int = 150) -> dict:
     """Metrics of one simulated procedure (seq must carry its true camera and depth)."""
@@ -35,10 +46,7 @@ def evaluate_sequence(model: DepthModel, seq: FrameSequence, depth_frames: int =
         raise InputError(f"{seq.name}: needs at least 3 frames for trajectory errors")
     window = range(0, min(seq.num_frames, trajectory_frames))
     result = infer_sequence(model, seq, depth=False, frames=window)
-    picks = np.linspace(0, seq.num_frames - 1, depth_frames).round().astype(int)
-    with torch.no_grad():
-        depths = model.depth(to_tensor(np.stack([seq.frame(t) for t in picks]),
-                                        device_of(model)))[:, 0].cpu().numpy()
+    picks, depths = scored_depths(model, seq, depth_frames)
     per_frame = []
     for t, pred in zip(picks, depths, strict=True):
         gt = seq.depth(t)
