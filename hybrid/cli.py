@@ -5,6 +5,7 @@ from __future__ import annotations
 import functools
 import json
 import logging
+import tempfile
 from pathlib import Path
 from typing import Annotated
 
@@ -16,6 +17,12 @@ from hybrid.types import InputError
 Device = Annotated[str, typer.Option(envvar="C2D2_DEVICE",
                                     help="Device for the networks: auto (the GPU when torch "
                                     "sees one, else the CPU), cpu, cuda or cuda:N.")]
+AdaptSteps = Annotated[int, typer.Option(min=0, help="First adapt the depth model to each "
+                                         "input by this many steps of its own training loss "
+                                         "on that input's frames (0: off; about 1 s a step "
+                                         "on 2 CPU cores). Not reliable: it made the depth of "
+                                         "some held-out videos much worse (docs/depth.md, "
+                                         "'Adapting to the video').")]
 
 app = typer.Typer(help="C2D2: detect deficient coverage in colonoscopy video.",
                   no_args_is_help=True, add_completion=False, pretty_exceptions_enable=False)
@@ -326,16 +333,21 @@ def depth(
                                               "input's size; detected if omitted.")] = None,
     fps: Annotated[float | None, typer.Option(help="Frame rate, if the video's is missing or "
                                               "wrong (image folders: 30).")] = None,
+    adapt_steps: AdaptSteps = 0,
     device: Device = "auto",
 ):
     """Per-frame depth, relative poses and one intrinsics estimate for an input."""
+    from learned.adapt import adapt_depth_model
     from learned.device import pick_device
     from learned.frames import open_sequence
     from learned.infer import infer_to_folder
     from learned.model import load_depth_model
 
-    model = load_depth_model(checkpoint or _shipped_checkpoint(), device=pick_device(device))
+    checkpoint, device = checkpoint or _shipped_checkpoint(), pick_device(device)
+    model = load_depth_model(checkpoint, device=device)
     seq = open_sequence(input, (model.config.height, model.config.width), _read_mask(mask), fps)
+    if adapt_steps:
+        model = adapt_depth_model(checkpoint, seq, out / "adapted", adapt_steps, True, device)
     infer_to_folder(model, seq, out, progress=True)
     typer.echo(str(out))
 
@@ -349,21 +361,33 @@ def eval_depth(
     out: Annotated[Path | None, typer.Option(help="Write the metrics JSON here.")] = None,
     frames: Annotated[int, typer.Option(min=1, help="Frames per procedure for depth metrics.")
                       ] = 24,
+    adapt_steps: AdaptSteps = 0,
+    adapt_dir: Annotated[Path | None, typer.Option(help="Keep the adapted models here, one "
+                                                   "folder per procedure (resumable); default: "
+                                                   "a temporary folder.")] = None,
     device: Device = "auto",
 ):
     """MRE, DR-MRE, DOM, abs_rel & co., intrinsics error, ATE and RPE on simulated data."""
+    from learned.adapt import adapt_depth_model
     from learned.device import pick_device
     from learned.evaluate import DEPTH_KEYS, evaluate_sequence, summarise
     from learned.frames import open_sequence
     from learned.model import load_depth_model
     from learned.train import expand_inputs
 
-    model = load_depth_model(checkpoint or _shipped_checkpoint(), device=pick_device(device))
+    checkpoint, device = checkpoint or _shipped_checkpoint(), pick_device(device)
+    model = load_depth_model(checkpoint, device=device)
     size = (model.config.height, model.config.width)
     paths = expand_inputs(data)
     names = [f"{p.parent.name}/{p.name}" for p in paths]  # proc_0000 of two datasets differ
-    results = {name: evaluate_sequence(model, open_sequence(path, size), frames)
-               for name, path in zip(names, paths, strict=True)}
+    results = {}
+    with tempfile.TemporaryDirectory() as scratch:
+        for name, path in zip(names, paths, strict=True):
+            seq = open_sequence(path, size)
+            read = model if not adapt_steps else adapt_depth_model(
+                checkpoint, seq, Path(adapt_dir or scratch) / name.replace("/", "-"),
+                adapt_steps, True, device)
+            results[name] = evaluate_sequence(read, seq, frames)
     summary = summarise(results)
     keys = DEPTH_KEYS + ("fx_rel", "fy_rel", "cx_rel", "cy_rel", "ate", "rpe_translation",
                          "rpe_rotation_deg")
@@ -372,7 +396,8 @@ def eval_depth(
     for name, m in [*results.items(), ("MEAN", summary)]:
         typer.echo(f"{name:{width}s} " + " ".join(f"{m[k]:9.4f}" for k in keys))
     if out is not None:
-        out.write_text(json.dumps({"mean": summary, "procedures": results}, indent=1) + "\n")
+        out.write_text(json.dumps({"mean": summary, "procedures": results,
+                                   "adapt_steps": adapt_steps}, indent=1) + "\n")
 
 
 @app.command("train-coverage")

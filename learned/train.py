@@ -117,10 +117,12 @@ def validate(model: DepthModel, sequences: list[FrameSequence], frames_per_seque
     return {"val_mre": float(np.median(errors)), "val_focal_rel": float(np.mean(focal))}
 
 
-def train_depth(data: list[Path], out: Path, config: DepthConfig, val: list[Path] = (),
-                log_every: int = 50, val_every: int = 500, save_every: int = 250,
-                progress: bool = True, device: torch.device | str = "cpu") -> Path:
-    """Train (or resume) on `device` and return the checkpoint path."""
+def train_depth(data: list[Path | FrameSequence], out: Path, config: DepthConfig,
+                val: list[Path] = (), log_every: int = 50, val_every: int = 500,
+                save_every: int = 250, progress: bool = True,
+                device: torch.device | str = "cpu") -> Path:
+    """Train (or resume) on `device` and return the checkpoint path. `data`: inputs as
+    `expand_inputs` takes them, or sequences already opened at the config's size."""
     out = Path(out)
     path = out / CHECKPOINT
     if not path.is_file() and config.init and not Path(config.init).is_file():
@@ -135,7 +137,11 @@ def train_depth(data: list[Path], out: Path, config: DepthConfig, val: list[Path
         elapsed = _drop_records_after(out / "metrics.jsonl", step)
     size = (config.height, config.width)
     fps = config.input_fps or None
-    sampler = TripletSampler([open_sequence(p, size, fps=fps) for p in expand_inputs(data)],
+    opened = [d for d in data if isinstance(d, FrameSequence)]
+    if any(tuple(s.size) != size for s in opened):
+        raise InputError(f"training sequences must be at the model's size {size}")
+    paths = expand_inputs([d for d in data if not isinstance(d, FrameSequence)])
+    sampler = TripletSampler(opened + [open_sequence(p, size, fps=fps) for p in paths],
                              config.pair_gap_s, config.chain_steps if config.w_chain else 0)
     val_sequences = [s for s in (open_sequence(p, size) for p in expand_inputs(list(val)))
                      if s.camera is not None]

@@ -1,0 +1,59 @@
+"""Adapting the depth model to one video before reading it (self-supervised, test time).
+
+The model's own training loss (view synthesis, with the loss settings it was trained with) is
+minimised for a number of steps on the frames of the one video it will then read: that video's
+RGB only, no labels and no calibration, so it applies to any recorded procedure. The model
+starts from the given checkpoint, which is also the chain term's teacher where the model's loss
+has one. Measured in docs/depth.md, "Adapting to the video".
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import replace
+from pathlib import Path
+
+import torch
+
+from hybrid.types import InputError
+from learned.checkpoint import file_tag
+from learned.config import DepthConfig
+from learned.frames import FrameSequence
+from learned.model import DepthModel, load_depth_model
+from learned.train import WEIGHTS, train_depth
+
+INPUT_RECORD = "adapted_to.json"
+"""What the run in an adaptation folder was adapted to: the input, and the starting model."""
+
+
+def adaptation_config(config: DepthConfig, checkpoint: Path, steps: int, seq: FrameSequence
+                      ) -> DepthConfig:
+    """The model's training config, run for `steps` from `checkpoint` at its constant learning
+    rate; the chain term's steps capped at the video's pair gap in frames (a low frame rate
+    has fewer frames between a pair)."""
+    gap = max(1, round(seq.fps * config.pair_gap_s))
+    return replace(config, init=str(checkpoint), steps=steps, lr_drop_step=0, input_fps=0.0,
+                   chain_steps=min(config.chain_steps, gap))
+
+
+def adapt_depth_model(checkpoint: Path, seq: FrameSequence, out: Path, steps: int,
+                      progress: bool = False, device: torch.device | str = "cpu"
+                      ) -> DepthModel:
+    """The model at `checkpoint` after `steps` training steps on `seq` alone, on `device`.
+
+    The run is kept in `out` (checkpoint, config, losses) and resumes there; a folder holding
+    an adaptation of another model or to another input is refused.
+    """
+    if steps < 1:
+        raise InputError(f"adaptation needs at least 1 step, got {steps}")
+    out = Path(out)
+    config = adaptation_config(load_depth_model(checkpoint).config, checkpoint, steps, seq)
+    record = {"input": seq.name, "frames": seq.num_frames, "model": file_tag(checkpoint)}
+    previous = out / INPUT_RECORD
+    if previous.is_file() and json.loads(previous.read_text()) != record:
+        raise InputError(f"{out} holds an adaptation of another model or to another input "
+                         f"({previous}); use another folder")
+    out.mkdir(parents=True, exist_ok=True)
+    previous.write_text(json.dumps(record) + "\n")
+    train_depth([seq], out, config, progress=progress, device=device)
+    return load_depth_model(out / WEIGHTS, device=device)
