@@ -347,7 +347,8 @@ def depth(
     model = load_depth_model(checkpoint, device=device)
     seq = open_sequence(input, (model.config.height, model.config.width), _read_mask(mask), fps)
     if adapt_steps:
-        model = adapt_depth_model(checkpoint, seq, out / "adapted", adapt_steps, True, device)
+        model = adapt_depth_model(checkpoint, model.config, seq, out / "adapted", adapt_steps,
+                                  True, device)
     infer_to_folder(model, seq, out, progress=True)
     typer.echo(str(out))
 
@@ -375,6 +376,8 @@ def eval_depth(
     from learned.model import load_depth_model
     from learned.train import expand_inputs
 
+    if adapt_dir is not None and not adapt_steps:
+        raise InputError("--adapt-dir keeps adapted models: give --adapt-steps too")
     checkpoint, device = checkpoint or _shipped_checkpoint(), pick_device(device)
     model = load_depth_model(checkpoint, device=device)
     size = (model.config.height, model.config.width)
@@ -385,8 +388,8 @@ def eval_depth(
         for name, path in zip(names, paths, strict=True):
             seq = open_sequence(path, size)
             read = model if not adapt_steps else adapt_depth_model(
-                checkpoint, seq, Path(adapt_dir or scratch) / name.replace("/", "-"),
-                adapt_steps, True, device)
+                checkpoint, model.config, seq, Path(adapt_dir or scratch) /
+                name.replace("/", "-"), adapt_steps, True, device)
             results[name] = evaluate_sequence(read, seq, frames)
     summary = summarise(results)
     keys = DEPTH_KEYS + ("fx_rel", "fy_rel", "cx_rel", "cy_rel", "ate", "rpe_translation",

@@ -10,6 +10,7 @@ has one. Measured in docs/depth.md, "Adapting to the video".
 from __future__ import annotations
 
 import json
+import logging
 from dataclasses import replace
 from pathlib import Path
 
@@ -22,8 +23,9 @@ from learned.frames import FrameSequence
 from learned.model import DepthModel, load_depth_model
 from learned.train import WEIGHTS, train_depth
 
-INPUT_RECORD = "adapted_to.json"
-"""What the run in an adaptation folder was adapted to: the input, and the starting model."""
+log = logging.getLogger(__name__)
+RECORD = "adapted_to.json"
+"""What the run in an adaptation folder is: its input, starting model and number of steps."""
 
 
 def adaptation_config(config: DepthConfig, checkpoint: Path, steps: int, seq: FrameSequence
@@ -32,27 +34,34 @@ def adaptation_config(config: DepthConfig, checkpoint: Path, steps: int, seq: Fr
     rate; the chain term's steps capped at the video's pair gap in frames (a low frame rate
     has fewer frames between a pair)."""
     gap = max(1, round(seq.fps * config.pair_gap_s))
+    if config.w_chain and gap < config.chain_steps:
+        log.warning("%s: the chain term takes %d steps instead of %d, the frames between a "
+                    "pair at %.3g frames/s", seq.name, gap, config.chain_steps, seq.fps)
     return replace(config, init=str(checkpoint), steps=steps, lr_drop_step=0, input_fps=0.0,
                    chain_steps=min(config.chain_steps, gap))
 
 
-def adapt_depth_model(checkpoint: Path, seq: FrameSequence, out: Path, steps: int,
-                      progress: bool = False, device: torch.device | str = "cpu"
+def adapt_depth_model(checkpoint: Path, config: DepthConfig, seq: FrameSequence, out: Path,
+                      steps: int, progress: bool = False, device: torch.device | str = "cpu"
                       ) -> DepthModel:
-    """The model at `checkpoint` after `steps` training steps on `seq` alone, on `device`.
+    """The model at `checkpoint` (of this config) after `steps` training steps on `seq` alone,
+    on `device`.
 
-    The run is kept in `out` (checkpoint, config, losses) and resumes there; a folder holding
-    an adaptation of another model or to another input is refused.
+    The run is kept in `out` (checkpoint, config, losses) and resumes there if interrupted; a
+    folder holding an adaptation of another model, to another input or for another number of
+    steps is refused.
     """
     if steps < 1:
         raise InputError(f"adaptation needs at least 1 step, got {steps}")
     out = Path(out)
-    config = adaptation_config(load_depth_model(checkpoint).config, checkpoint, steps, seq)
-    record = {"input": seq.name, "frames": seq.num_frames, "model": file_tag(checkpoint)}
-    previous = out / INPUT_RECORD
+    record = {"input": str(Path(seq.name).resolve()), "frames": seq.num_frames,
+              "model": file_tag(checkpoint), "steps": steps}
+    previous = out / RECORD
     if previous.is_file() and json.loads(previous.read_text()) != record:
-        raise InputError(f"{out} holds an adaptation of another model or to another input "
-                         f"({previous}); use another folder")
+        raise InputError(f"{out} holds an adaptation of another model, to another input or "
+                         f"for another number of steps ({previous}); remove it or choose "
+                         f"another output folder")
+    config = adaptation_config(config, checkpoint, steps, seq)
     out.mkdir(parents=True, exist_ok=True)
     previous.write_text(json.dumps(record) + "\n")
     train_depth([seq], out, config, progress=progress, device=device)

@@ -138,8 +138,9 @@ def train_depth(data: list[Path | FrameSequence], out: Path, config: DepthConfig
     size = (config.height, config.width)
     fps = config.input_fps or None
     opened = [d for d in data if isinstance(d, FrameSequence)]
-    if any(tuple(s.size) != size for s in opened):
-        raise InputError(f"training sequences must be at the model's size {size}")
+    for seq in opened:
+        if tuple(seq.size) != size:
+            raise InputError(f"{seq.name}: frames of {tuple(seq.size)}, the model takes {size}")
     paths = expand_inputs([d for d in data if not isinstance(d, FrameSequence)])
     sampler = TripletSampler(opened + [open_sequence(p, size, fps=fps) for p in paths],
                              config.pair_gap_s, config.chain_steps if config.w_chain else 0)

@@ -1,6 +1,6 @@
-"""learned.adapt: adapting the depth model to one video lowers its own loss on that video; the
-run resumes, refuses a folder of another adaptation, and fits a low frame rate's chain term;
-the `eval-depth` and `depth` commands adapt per input when asked."""
+"""learned.adapt: adapting the depth model to one video lowers its own loss on that video; a
+folder of another adaptation is refused, and a low frame rate's chain term fits; `eval-depth`
+scores and `depth` writes the adapted model when asked."""
 
 from __future__ import annotations
 
@@ -16,9 +16,10 @@ from typer.testing import CliRunner
 from hybrid.cli import app
 from hybrid.types import InputError
 from learned.adapt import adapt_depth_model, adaptation_config
-from learned.checkpoint import export_weights
+from learned.checkpoint import export_weights, file_tag
+from learned.evaluate import evaluate_sequence
 from learned.frames import FrameSequence, open_sequence
-from learned.model import load_depth_model
+from learned.model import load_depth_model, to_tensor
 from learned.train import TripletSampler, train_depth
 
 pytestmark = pytest.mark.usefixtures("one_thread")
@@ -44,29 +45,32 @@ def clip_loss(model, clip) -> float:
     return total
 
 
-def test_adapting_lowers_the_loss_on_the_video_and_resumes(start, clip, tmp_path):
+def test_adapting_lowers_the_loss_on_the_video(start, clip, tmp_path):
     seq = open_sequence(clip, (TINY.height, TINY.width))
     before = clip_loss(load_depth_model(start), clip)
-    adapted = adapt_depth_model(start, seq, tmp_path / "adapted", steps=15)
+    adapted = adapt_depth_model(start, TINY, seq, tmp_path / "adapted", steps=15)
     after = clip_loss(adapted, clip)
     # Deterministic evaluations (fixed batches and noise), so the drop is the adaptation's.
     assert after < 0.95 * before, (before, after)
     record = json.loads((tmp_path / "adapted" / "adapted_to.json").read_text())
-    assert record["input"] == seq.name and record["frames"] == seq.num_frames
-    again = adapt_depth_model(start, seq, tmp_path / "adapted", steps=15)  # nothing left to do
-    assert all(torch.equal(a, b) for a, b in zip(again.parameters(), adapted.parameters(),
-                                                 strict=True))
+    assert record == {"input": str(clip.resolve()), "frames": seq.num_frames,
+                      "model": file_tag(start), "steps": 15}
 
 
-def test_a_folder_adapted_to_another_input_is_refused(start, clip, tmp_path):
+def test_a_folder_of_another_adaptation_is_refused(start, clip, tmp_path):
     seq = open_sequence(clip, (TINY.height, TINY.width))
-    adapt_depth_model(start, seq, tmp_path / "adapted", steps=1)
-    shorter = FrameSequence("other", seq.fps, seq.size, seq.frame, seq.num_frames - 1,
-                            region=seq.region, crop=seq.crop)
-    with pytest.raises(InputError, match="another input"):
-        adapt_depth_model(start, shorter, tmp_path / "adapted", steps=1)
+    adapt_depth_model(start, TINY, seq, tmp_path / "adapted", steps=1)
+    other_input = FrameSequence("other", seq.fps, seq.size, seq.frame, seq.num_frames,
+                                region=seq.region, crop=seq.crop)
+    other_model = tmp_path / "other.safetensors"
+    other_model.write_bytes(start.read_bytes() + b" ")  # another file, another hash
+    for args in ((start, other_input, 1), (start, seq, 2), (other_model, seq, 1)):
+        with pytest.raises(InputError, match="another number of steps"):
+            adapt_depth_model(args[0], TINY, args[1], tmp_path / "adapted", steps=args[2])
     with pytest.raises(InputError, match="at least 1 step"):
-        adapt_depth_model(start, seq, tmp_path / "zero", steps=0)
+        adapt_depth_model(start, TINY, seq, tmp_path / "zero", steps=0)
+    with pytest.raises(InputError, match=r"other: frames of \(64, 96\), the model takes"):
+        train_depth([other_input], tmp_path / "wide", replace(TINY, width=128), progress=False)
 
 
 def test_the_chain_term_is_capped_at_a_low_frame_rate_pair_gap(start):
@@ -80,20 +84,30 @@ def test_the_chain_term_is_capped_at_a_low_frame_rate_pair_gap(start):
     assert adapted.init == str(start) and adapted.w_chain == 0.3
 
 
-def test_eval_depth_and_depth_adapt_each_input_when_asked(start, simulated, tmp_path):
+def test_eval_depth_and_depth_score_and_write_the_adapted_model(start, simulated, tmp_path):
     out = tmp_path / "eval.json"
     result = CliRunner().invoke(app, [
         "eval-depth", "--data", str(simulated), "--checkpoint", str(start), "--frames", "2",
         "--adapt-steps", "3", "--adapt-dir", str(tmp_path / "runs"), "--out", str(out)])
     assert result.exit_code == 0, result.output
-    name = f"{simulated.parent.name}-{simulated.name}"
-    adapted = load_depth_model(tmp_path / "runs" / name / "model.safetensors")
-    assert json.loads(out.read_text())["adapt_steps"] == 3
-    # The weights scored are the adapted ones: 3 steps away from the start's.
-    assert not all(torch.equal(a, b) for a, b in zip(
-        adapted.parameters(), load_depth_model(start).parameters(), strict=True))
+    written = json.loads(out.read_text())
+    adapted = load_depth_model(tmp_path / "runs" / f"{simulated.parent.name}-{simulated.name}"
+                               / "model.safetensors")
+    seq = open_sequence(simulated, (TINY.height, TINY.width))
+    assert written["adapt_steps"] == 3
+    assert list(written["procedures"].values()) == [evaluate_sequence(adapted, seq, 2)]
+    assert evaluate_sequence(load_depth_model(start), seq, 2) != evaluate_sequence(adapted, seq,
+                                                                                   2)
     result = CliRunner().invoke(app, ["depth", str(simulated), "--out", str(tmp_path / "depth"),
-                                      "--checkpoint", str(start), "--adapt-steps", "2"])
+                                      "--checkpoint", str(start), "--adapt-steps", "3"])
     assert result.exit_code == 0, result.output
-    assert (tmp_path / "depth" / "adapted" / "model.safetensors").is_file()
-    assert len(list((tmp_path / "depth" / "depth").glob("*.npy"))) > 0
+    with torch.no_grad():  # the same 3 steps, so the same model: its depth is what was written
+        first = adapted.depth(to_tensor(seq.frame(0)[None], "cpu"))[0, 0].numpy()
+    np.testing.assert_allclose(np.load(tmp_path / "depth" / "depth" / "000000.npy"), first,
+                               rtol=1e-5)
+
+
+def test_eval_depth_refuses_an_adapt_dir_without_steps(start, simulated, tmp_path):
+    result = CliRunner().invoke(app, ["eval-depth", "--data", str(simulated), "--checkpoint",
+                                      str(start), "--adapt-dir", str(tmp_path)])
+    assert result.exit_code != 0 and "--adapt-steps" in result.stderr
