@@ -4,7 +4,9 @@ The model's own training loss (view synthesis, with the loss settings it was tra
 minimised for a number of steps on the frames of the one video it will then read: that video's
 RGB only, no labels and no calibration, so it applies to any recorded procedure. The model
 starts from the given checkpoint, which is also the chain term's teacher where the model's loss
-has one. Measured in docs/depth.md, "Adapting to the video".
+has one. Not reliable, so off unless asked for: on held-out simulated procedures it lowered
+the depth error of most pink videos and raised that of every dusk one (docs/depth.md,
+"Adapting to the video").
 """
 
 from __future__ import annotations
