@@ -35,7 +35,7 @@ def main() -> None:
     parser.add_argument("--data", type=Path, nargs="+", required=True)
     parser.add_argument("--frames", type=int, default=24, help="frames per procedure")
     args = parser.parse_args()
-    model = load_depth_model(args.model).eval()
+    model = load_depth_model(args.model)  # in eval mode
     size = (model.config.height, model.config.width)
     ratios, agreements, plain, powered, best = [], [], [], [], []
     for path in expand_inputs(args.data):
