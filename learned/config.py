@@ -169,16 +169,28 @@ def depth_config(preset: str, **overrides) -> DepthConfig:
 
 def parse_overrides(items: list[str], defaults=DEPTH_PRESETS["fast"]) -> dict:
     """{'pair_gap_s': 0.6} from ['pair_gap_s=0.6'], each value parsed as the type of its field
-    in defaults (a config dataclass)."""
+    in defaults (a config dataclass); a tuple of integers is written 32,48,64 and keeps the
+    default's length."""
     types = {f.name: type(getattr(defaults, f.name)) for f in fields(defaults)}
     out = {}
     for item in items:
         key, sep, text = item.partition("=")
-        if not sep or key not in types or types[key] is tuple or key == "preset":
-            scalars = ", ".join(k for k, t in types.items() if t is not tuple and k != "preset")
-            raise ValueError(f"--set {item!r}: expected FIELD=VALUE with one of {scalars}")
+        if not sep or key not in types or key == "preset":
+            names = ", ".join(k for k in types if k != "preset")
+            raise ValueError(f"--set {item!r}: expected FIELD=VALUE with one of {names}")
         kind = types[key]
-        if kind is bool:
+        if kind is tuple:
+            default = getattr(defaults, key)
+            try:
+                value = tuple(int(v) for v in text.split(","))
+            except ValueError as err:
+                raise ValueError(f"--set {item!r}: {key} takes integers separated by commas"
+                                 ) from err
+            if len(value) != len(default):
+                raise ValueError(f"--set {item!r}: {key} takes {len(default)} values, like "
+                                 f"{','.join(map(str, default))}")
+            out[key] = value
+        elif kind is bool:
             if text.lower() not in ("true", "false"):
                 raise ValueError(f"--set {item!r}: {key} takes true or false")
             out[key] = text.lower() == "true"

@@ -229,9 +229,11 @@ def test_trajectory_errors_hand_case():
 def test_config_overrides_parse_by_field_type():
     from learned.config import parse_overrides
 
-    assert parse_overrides(["pair_gap_s=0.6", "ssim_window=7", "mask_out_of_view=false"]) == {
-        "pair_gap_s": 0.6, "ssim_window": 7, "mask_out_of_view": False}
+    assert parse_overrides(["pair_gap_s=0.6", "ssim_window=7", "mask_out_of_view=false",
+                            "encoder_channels=32,48,64,128,192"]) == {
+        "pair_gap_s": 0.6, "ssim_window": 7, "mask_out_of_view": False,
+        "encoder_channels": (32, 48, 64, 128, 192)}
     for bad in (["nonsense=1"], ["ssim_window=seven"], ["automask=maybe"], ["steps"],
-                ["encoder_channels=1"]):
+                ["encoder_channels=1"], ["encoder_channels=32,48,x,128,192"], ["preset=paper"]):
         with pytest.raises(ValueError, match="--set"):
             parse_overrides(bad)
