@@ -6,9 +6,13 @@ run's data, config and fold split), so that a variant stopped after a fold or tw
 compared fold by fold with another run. Then, pooled over the finished folds, the default
 (1, 4) cm pair's error by kind of frame: true coverage 0 or not, and the sign of the travel
 input's z (z > 0: moving along the view, as a camera looking back during a withdrawal does);
-with --training, the same over each fold's training procedures, for the fold models' fit.
+with --training, the same over each fold's training procedures, for the fold models' fit, and
+each fold model's metrics on its training procedures, their training windows (every 30
+frames) standing for segments, with the bias of the windows of true coverage below 0.4.
+The fold models are uncalibrated (learned.calibration).
 
     python benchmarks/coverage_folds.py --run data/runs/coverage-base0 --run data/runs/coverage-hops
+    python benchmarks/coverage_folds.py --run data/runs/coverage-hops --fold 0 --training
 """
 
 from __future__ import annotations
@@ -19,9 +23,9 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from learned.coverage_eval import Predictions, coverage_metrics, format_table
+from learned.coverage_eval import CLASS_EDGES, Predictions, coverage_metrics, format_table
 from learned.coverage_nets import load_coverage_model
-from learned.coverage_train import load_run, predict
+from learned.coverage_train import held_out, load_run, predict
 
 
 def by_kind(pred: np.ndarray, true: np.ndarray, z: np.ndarray) -> str:
@@ -42,7 +46,9 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--run", type=Path, action="append", required=True)
     parser.add_argument("--training", action="store_true",
-                        help="also the error by kind on each fold's training procedures")
+                        help="also the fit to each fold's training procedures")
+    parser.add_argument("--fold", type=int, action="append",
+                        help="only this fold (repeatable; default: every finished fold)")
     args = parser.parse_args()
     torch.set_num_threads(1)
     for run in args.run:
@@ -50,7 +56,7 @@ def main() -> None:
         _, config, samples, folds = load_run(run)
         for k, held in enumerate(folds):
             path = run / f"fold-{k}.safetensors"
-            if not path.is_file():
+            if not path.is_file() or (args.fold and k not in args.fold):
                 continue
             model, predictions = load_coverage_model(path), Predictions()
             for i in held:
@@ -60,10 +66,21 @@ def main() -> None:
                 pooled.append((frame[:, 1], samples[i].frame_labels[:, 1],
                                samples[i].travel[:, 2]))
             rows[f"fold {k}"] = coverage_metrics(predictions)
-            for i in sorted(set(range(len(samples))) - set(held)) if args.training else []:
-                trained.append((predict(model, samples[i])[0][:, 1],
-                                samples[i].frame_labels[:, 1], samples[i].travel[:, 2]))
+            if args.training:
+                training = [samples[i] for i in sorted(set(range(len(samples))) - set(held))]
+                fit = held_out(model, training)
+                windows = Predictions(fit.predictions.frame_pred, fit.predictions.frame_true,
+                                      [fit.window_pred], [fit.window_true])
+                rows[f"fold {k}, training"] = coverage_metrics(windows)
+                low = fit.window_true < CLASS_EDGES[0]
+                rows[f"fold {k}, training"]["low_window_bias"] = float(
+                    (fit.window_pred - fit.window_true)[low].mean())
+                trained += [(frame[:, 1], s.frame_labels[:, 1], s.travel[:, 2]) for frame, s
+                            in zip(fit.predictions.frame_pred, training, strict=True)]
         print(f"{run}:\n{format_table(rows)}")
+        for name, row in rows.items():
+            if "low_window_bias" in row:
+                print(f"{name}: bias of the windows below 0.4 {row['low_window_bias']:+.3f}")
         if pooled and config.travel_gap:
             print("(1, 4) cm per kind of frame, the finished folds pooled:")
             print(by_kind(*(np.concatenate(column) for column in zip(*pooled, strict=True))))

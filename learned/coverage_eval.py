@@ -33,13 +33,19 @@ class Predictions:
         self.segment_pred.append(segment_pred)
         self.segment_true.append(segment_true)
 
+    def extend(self, other: Predictions) -> None:
+        for column in ("frame_pred", "frame_true", "segment_pred", "segment_true"):
+            getattr(self, column).extend(getattr(other, column))
+
     def arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         return (np.concatenate(self.frame_pred), np.concatenate(self.frame_true),
                 np.concatenate(self.segment_pred), np.concatenate(self.segment_true))
 
 
 def coverage_metrics(predictions: Predictions) -> dict:
-    """Per-frame MAE per Δ pair, per-segment MAE, bias and 3-class accuracy, with counts."""
+    """Per-frame MAE per Δ pair, per-segment MAE, bias and 3-class accuracy, with counts, and
+    how well deficient segments (coverage below the lowest class edge) are found: the share of
+    them flagged (recall) and the share of flagged segments that are (precision)."""
     frame_pred, frame_true, seg_pred, seg_true = predictions.arrays()
     out: dict = {}
     for k, pair in enumerate(DELTA_PAIRS_CM):
@@ -55,14 +61,20 @@ def coverage_metrics(predictions: Predictions) -> dict:
         (three_class(seg_pred[ok]) == three_class(seg_true[ok])).mean()) if ok.any() else float(
         "nan")
     out["segments"] = int(ok.sum())
+    flagged, deficient = seg_pred[ok] < CLASS_EDGES[0], seg_true[ok] < CLASS_EDGES[0]
+    out["deficient_recall"] = float(flagged[deficient].mean()) if deficient.any() else float(
+        "nan")
+    out["deficient_precision"] = float(deficient[flagged].mean()) if flagged.any() else float(
+        "nan")
     return out
 
 
 def format_table(rows: dict[str, dict]) -> str:
     """One line per named metrics dict."""
     keys = [f"frame_mae_{pair_key(p)}" for p in DELTA_PAIRS_CM] + [
-        "segment_mae", "segment_bias", "segment_3class_accuracy", "segments"]
-    head = f"{'':18s}" + "".join(f"{k.replace('segment_', 'seg_'):>16.16s}" for k in keys)
+        "segment_mae", "segment_bias", "segment_3class_accuracy", "deficient_recall",
+        "deficient_precision", "segments"]
+    head = f"{'':18s}" + "".join(f"{k.replace('segment_', 'seg_'):>16.15s}" for k in keys)
     lines = [head]
     for name, m in rows.items():
         lines.append(f"{name:18.18s}" + "".join(f"{m[k]:16.4f}" if isinstance(m[k], float)

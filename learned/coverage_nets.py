@@ -7,7 +7,7 @@ frame for the three (Δ0, Δ1) pairs; its penultimate layer (global average of
 the last ResNet stage) is the frame's feature vector.
 Stage 2, `SegmentNet`: the T x F features of a segment -> six 1-D convolutions -> average over
 time -> an affine CORAL transform (identity until adapted) -> a fully connected layer -> one
-coverage in [0, 1].
+coverage in [0, 1], calibrated on the cross-validation (learned.calibration).
 
 A mirrored colon is covered alike, so `CoverageModel` predicts from the four mirror views of
 each frame (`MIRRORS`): per-frame coverage is their mean, the features keep all four
@@ -29,6 +29,7 @@ from torch import nn
 
 from hybrid.coverage import DELTA_PAIRS_CM
 from hybrid.types import InputError
+from learned.calibration import apply_table, identity_table
 from learned.checkpoint import load_model, save_checkpoint
 from learned.config import CoverageConfig
 from learned.device import device_of
@@ -151,6 +152,10 @@ class SegmentNet(nn.Module):
         self.register_buffer("source_mean", torch.zeros(cin))
         self.register_buffer("source_cov", torch.eye(cin))
         self.fc = nn.Linear(cin, 1)
+        # The output's calibration (learned.calibration), applied by CoverageModel's
+        # segment_outputs; identity until train_coverage fits it on the cross-validation.
+        self.register_buffer("calibration", torch.from_numpy(identity_table()).float())
+        self.register_load_state_dict_pre_hook(_uncalibrated_before)
 
     def embed(self, features: torch.Tensor) -> torch.Tensor:
         """The second-to-last layer: (B, T, F) -> (B, C), before the CORAL transform."""
@@ -164,6 +169,11 @@ class SegmentNet(nn.Module):
 
     def forward(self, features: torch.Tensor) -> torch.Tensor:
         return self.head(self.embed(features))
+
+
+def _uncalibrated_before(module, state_dict, prefix, *args) -> None:
+    """Checkpoints saved before the calibration existed are uncalibrated: identity."""
+    state_dict.setdefault(prefix + "calibration", module.calibration.new_tensor(identity_table()))
 
 
 def count_parameters(module: nn.Module) -> int:
@@ -240,10 +250,11 @@ class CoverageModel(nn.Module):
     @torch.no_grad()
     def segment_outputs(self, features: np.ndarray, starts: list[int]) -> np.ndarray:
         """Coverage (S,) of the windows [s, s + T) of one video's (N, len(MIRRORS), F)
-        features: the mean over the mirror views."""
+        features: the mean over the mirror views, calibrated."""
         embedded = self.segment_embeddings(features, starts)
         values = self.segment.head(embedded.flatten(0, 1)).view(len(starts), len(MIRRORS))
-        return values.mean(dim=1).cpu().numpy().astype(np.float64)
+        calibrated = apply_table(self.segment.calibration, values.mean(dim=1))
+        return calibrated.cpu().numpy().astype(np.float64)
 
     def save(self, path: Path, step: int = 0) -> None:
         save_checkpoint(path, {"frame": self.frame, "segment": self.segment},

@@ -1,10 +1,12 @@
 """Training of the coverage networks: stage 1 (per frame), then stage 2 (per segment), with
 k-fold cross-validation split by procedure.
 
-Writes into the run folder: `fold-K.safetensors` (one model per fold, so an interrupted run
-resumes at the next fold), `cv_metrics.json` and `cv_scatter.png` (predictions on each fold's
-held-out procedures, pooled), `model.safetensors` (trained on every procedure: the model that
-ships), `train_log.jsonl` (losses) and `record.json` (config, data, depth model, times).
+Writes into the run folder: `fold-K.safetensors` (one model per fold, uncalibrated, so an
+interrupted run resumes at the next fold), `cv_metrics.json` and `cv_scatter.png` (predictions on
+each fold's held-out procedures, pooled; each fold's segments calibrated on the other folds'
+held-out windows), `model.safetensors` (trained on every procedure, its segment coverage
+calibrated on all the folds' held-out windows: the model that ships), `train_log.jsonl`
+(losses) and `record.json` (config, data, depth model, times).
 """
 
 from __future__ import annotations
@@ -12,6 +14,7 @@ from __future__ import annotations
 import json
 import logging
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -19,6 +22,7 @@ import torch
 from tqdm import tqdm
 
 from hybrid.types import InputError
+from learned.calibration import cross_fitted, fit_table, identity_table
 from learned.checkpoint import file_tag
 from learned.config import CoverageConfig
 from learned.coverage_data import ProcedureSamples, procedure_samples
@@ -183,6 +187,44 @@ def predict(model: CoverageModel, samples: ProcedureSamples) -> tuple[np.ndarray
     return frame, model.segment_outputs(features, samples.segment_starts.tolist())
 
 
+@dataclass
+class HeldOut:
+    """One fold model's predictions on its held-out procedures, uncalibrated, and its held-out
+    training windows (predictions, labels) that the calibration is fitted on."""
+
+    predictions: Predictions
+    window_pred: np.ndarray
+    window_true: np.ndarray
+
+
+def held_out(model: CoverageModel, samples: list[ProcedureSamples], progress: bool = False
+             ) -> HeldOut:
+    """A fold model's (uncalibrated) predictions on procedures it was not trained on."""
+    predictions, window_pred, window_true = Predictions(), [], []
+    for s in tqdm(samples, desc="held-out predictions", disable=not progress):
+        frame, features = model.frame_outputs(s.inputs, s.cues)
+        predictions.add(frame, s.frame_labels,
+                        model.segment_outputs(features, s.segment_starts.tolist()),
+                        s.segment_labels)
+        labelled = np.isfinite(s.window_labels)
+        window_pred.append(model.segment_outputs(features, s.window_starts[labelled].tolist()))
+        window_true.append(s.window_labels[labelled])
+    return HeldOut(predictions, np.concatenate(window_pred), np.concatenate(window_true))
+
+
+def calibrated_cv(folds: list[HeldOut]) -> Predictions:
+    """The folds' predictions pooled, each fold's segments calibrated on the other folds'
+    windows."""
+    segments = cross_fitted([np.concatenate(f.predictions.segment_pred) for f in folds],
+                            [(f.window_pred, f.window_true) for f in folds])
+    pooled = Predictions()
+    for fold, calibrated in zip(folds, segments, strict=True):
+        p = fold.predictions
+        pooled.add(np.concatenate(p.frame_pred), np.concatenate(p.frame_true), calibrated,
+                   np.concatenate(p.segment_true))
+    return pooled
+
+
 def evaluate(model: CoverageModel, samples: list[ProcedureSamples],
              predictions: Predictions | None = None) -> Predictions:
     """Predictions with their truth on each procedure (appended to `predictions` if given)."""
@@ -254,10 +296,10 @@ def train_coverage(data: list[Path], out: Path, config: CoverageConfig,
         log_file.write(json.dumps({"fold": fold, **entry}) + "\n")
         log_file.flush()
 
-    cv = Predictions()
-    for k, held_out in enumerate(fold_split(len(samples), config.folds, config.seed)):
+    folds = []
+    for k, held in enumerate(fold_split(len(samples), config.folds, config.seed)):
         path = out / f"fold-{k}.safetensors"
-        train = [s for i, s in enumerate(samples) if i not in set(held_out)]
+        train = [s for i, s in enumerate(samples) if i not in set(held)]
         if path.is_file():
             model = load_coverage_model(path, device=device)
         else:
@@ -265,20 +307,35 @@ def train_coverage(data: list[Path], out: Path, config: CoverageConfig,
             model = fit_model(train, config, lambda e, k=k: log(e, str(k)), progress, device)
             model.save(path)
             record["seconds"][f"fold_{k}"] = round(time.time() - tic, 1)
-        evaluate(model, [samples[i] for i in held_out], cv)
-    if cv.frame_pred:
-        metrics = coverage_metrics(cv)
+        folds.append(held_out(model, [samples[i] for i in held], progress))
+    if folds:
+        cv = calibrated_cv(folds)
+        raw = Predictions()
+        for fold in folds:
+            raw.extend(fold.predictions)
+        metrics = {**coverage_metrics(cv), "uncalibrated": coverage_metrics(raw)}
         record["cv_metrics"] = metrics
         (out / "cv_metrics.json").write_text(json.dumps(metrics, indent=1) + "\n")
         scatter_plots(cv, out / "cv_scatter.png",
                       f"{config.folds}-fold cross-validation by procedure ({len(samples)} "
                       f"procedures)")
-        logger.info("\n%s", format_table({f"{config.folds}-fold CV": metrics}))
+        logger.info("\n%s", format_table({f"{config.folds}-fold CV": metrics,
+                                          "uncalibrated": metrics["uncalibrated"]}))
+    else:
+        logger.warning("no cross-validation (folds=%d): the segment coverage is left "
+                       "uncalibrated", config.folds)
     final = out / "model.safetensors"
-    if not final.is_file():
+    if final.is_file():
+        model = load_coverage_model(final, device=device)
+    else:
         tic = time.time()
-        fit_model(samples, config, log, progress, device).save(final)
+        model = fit_model(samples, config, log, progress, device)
         record["seconds"]["final"] = round(time.time() - tic, 1)
+    table = identity_table() if not folds else fit_table(
+        np.concatenate([f.window_pred for f in folds]),
+        np.concatenate([f.window_true for f in folds]))
+    model.segment.calibration.copy_(torch.from_numpy(table))
+    model.save(final)
     record["seconds"]["total_this_call"] = round(time.time() - started, 1)
     record_path.write_text(json.dumps(record, indent=1) + "\n")
     log_file.close()

@@ -17,10 +17,12 @@ from hybrid.cli import app
 from hybrid.dataset import Procedure
 from hybrid.pipeline import Models, RunConfig
 from hybrid.types import InputError
+from learned.calibration import fit_table, identity_table
 from learned.checkpoint import save_checkpoint
 from learned.config import COVERAGE_PRESETS, coverage_config, parse_overrides
 from learned.coral import adapt, coral_transform, set_source
 from learned.coverage_data import ProcedureSamples, procedure_samples
+from learned.coverage_eval import coverage_metrics
 from learned.coverage_nets import (
     MIRRORS,
     CoverageModel,
@@ -33,7 +35,9 @@ from learned.coverage_nets import (
     resample_features,
 )
 from learned.coverage_train import (
+    calibrated_cv,
     fold_split,
+    held_out,
     load_run,
     powered,
     train_frame_net,
@@ -520,6 +524,20 @@ def test_train_eval_and_adapt_commands(tmp_path, two_procedures):
     record, config, samples, folds = load_run(run)
     assert config.travel_hops == 2 and [s.name for s in samples] == record["procedures"]
     assert [f.tolist() for f in folds] == [f.tolist() for f in fold_split(2, 2, 0)]
+    # The cross-validation's segments are calibrated fold by fold on the other fold's held-out
+    # windows, and the shipped model on both folds' windows.
+    held = [held_out(load_coverage_model(run / f"fold-{k}.safetensors"),
+                     [samples[i] for i in f]) for k, f in enumerate(folds)]
+    assert cv["segment_mae"] == pytest.approx(
+        coverage_metrics(calibrated_cv(held))["segment_mae"])
+    assert cv["uncalibrated"]["segment_mae"] == pytest.approx(np.mean(np.abs(np.concatenate(
+        [np.concatenate(h.predictions.segment_pred) - np.concatenate(h.predictions.segment_true)
+         for h in held]))))
+    table = fit_table(np.concatenate([h.window_pred for h in held]),
+                      np.concatenate([h.window_true for h in held]))
+    final = load_coverage_model(run / "model.safetensors").segment.calibration.numpy()
+    np.testing.assert_allclose(final, table, atol=1e-6)
+    assert np.abs(final - identity_table()).max() > 0.01
     (run / "record.json").write_text(json.dumps({**record, "procedures": ["other/proc"] * 2}))
     with pytest.raises(InputError, match="no longer those of"):
         load_run(run)

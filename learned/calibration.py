@@ -1,0 +1,61 @@
+"""Calibration of the per-segment coverage: a monotone map from the network's output to
+coverage, fitted on cross-validated (out-of-fold) predictions.
+
+Stage 2 trains on the features of procedures that stage 1 has fitted closely, and sees noisier
+features on a new procedure; its outputs there shrink towards the mean (segments of low
+coverage come out too high, docs/coverage.md). An isotonic regression of the true coverage on
+the network's output over held-out windows undoes that. The map is kept as a table of its
+values at evenly spaced outputs in [0, 1], read by linear interpolation.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+from scipy.optimize import isotonic_regression
+
+from hybrid.types import InputError
+
+KNOTS = 101
+"""Points of the calibration table (outputs 0, 0.01, ..., 1)."""
+
+
+def identity_table(knots: int = KNOTS) -> np.ndarray:
+    """The table of no calibration."""
+    return np.linspace(0.0, 1.0, knots)
+
+
+def fit_table(pred: np.ndarray, true: np.ndarray, knots: int = KNOTS) -> np.ndarray:
+    """(knots,) non-decreasing table of the isotonic regression of `true` on `pred` (values in
+    [0, 1]), flat beyond the outputs seen."""
+    pred, true = np.asarray(pred, dtype=np.float64), np.asarray(true, dtype=np.float64)
+    if pred.shape != true.shape or pred.ndim != 1 or len(pred) < 2 or \
+            not (np.isfinite(pred).all() and np.isfinite(true).all()):
+        raise InputError(f"calibration needs matching finite predictions and labels (at least "
+                         f"2), got {pred.shape} and {true.shape}")
+    outputs, which, counts = np.unique(pred, return_inverse=True, return_counts=True)
+    means = np.bincount(which, weights=true) / counts  # equal outputs: one point, their mean
+    fitted = np.clip(isotonic_regression(means, weights=counts).x, 0.0, 1.0)
+    return np.interp(np.linspace(0.0, 1.0, knots), outputs, fitted)
+
+
+def apply_table(table: torch.Tensor, values: torch.Tensor) -> torch.Tensor:
+    """The calibrated coverage of network outputs in [0, 1]: linear interpolation in the
+    table."""
+    position = values.clamp(0.0, 1.0) * (len(table) - 1)
+    low = position.floor().long().clamp(max=len(table) - 2)
+    frac = position - low
+    return table[low] * (1.0 - frac) + table[low + 1] * frac
+
+
+def cross_fitted(pred_by_fold: list[np.ndarray],
+                 windows_by_fold: list[tuple[np.ndarray, np.ndarray]]) -> list[np.ndarray]:
+    """Each fold's held-out segment predictions calibrated by a table fitted on the other
+    folds' held-out windows (predictions, labels), so that no fold is calibrated on itself."""
+    out = []
+    for k, pred in enumerate(pred_by_fold):
+        others = [w for j, w in enumerate(windows_by_fold) if j != k]
+        table = fit_table(np.concatenate([p for p, _ in others]),
+                          np.concatenate([t for _, t in others]))
+        out.append(apply_table(torch.from_numpy(table), torch.from_numpy(pred)).numpy())
+    return out
