@@ -73,14 +73,15 @@ def main() -> None:
                                       [fit.window_pred], [fit.window_true])
                 rows[f"fold {k}, training"] = coverage_metrics(windows)
                 low = fit.window_true < CLASS_EDGES[0]
-                rows[f"fold {k}, training"]["low_window_bias"] = float(
-                    (fit.window_pred - fit.window_true)[low].mean())
+                rows[f"fold {k}, training"]["low_windows"] = (int(low.sum()), float(
+                    (fit.window_pred - fit.window_true)[low].mean()))
                 trained += [(frame[:, 1], s.frame_labels[:, 1], s.travel[:, 2]) for frame, s
                             in zip(fit.predictions.frame_pred, training, strict=True)]
         print(f"{run}:\n{format_table(rows)}")
         for name, row in rows.items():
-            if "low_window_bias" in row:
-                print(f"{name}: bias of the windows below 0.4 {row['low_window_bias']:+.3f}")
+            if "low_windows" in row:
+                count, bias = row["low_windows"]
+                print(f"{name}: {count} windows below 0.4, their bias {bias:+.3f}")
         if pooled and config.travel_gap:
             print("(1, 4) cm per kind of frame, the finished folds pooled:")
             print(by_kind(*(np.concatenate(column) for column in zip(*pooled, strict=True))))
