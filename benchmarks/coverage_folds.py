@@ -25,7 +25,7 @@ import torch
 
 from learned.coverage_eval import CLASS_EDGES, Predictions, coverage_metrics, format_table
 from learned.coverage_nets import load_coverage_model
-from learned.coverage_train import held_out, load_run, predict
+from learned.coverage_train import fold_predictions, load_run, predict
 
 
 def by_kind(pred: np.ndarray, true: np.ndarray, z: np.ndarray) -> str:
@@ -54,6 +54,8 @@ def main() -> None:
     for run in args.run:
         rows, pooled, trained = {}, [], []
         _, config, samples, folds = load_run(run)
+        if args.fold and not set(args.fold) <= set(range(len(folds))):
+            parser.error(f"--fold: {run} has folds 0-{len(folds) - 1}")
         for k, held in enumerate(folds):
             path = run / f"fold-{k}.safetensors"
             if not path.is_file() or (args.fold and k not in args.fold):
@@ -68,13 +70,14 @@ def main() -> None:
             rows[f"fold {k}"] = coverage_metrics(predictions)
             if args.training:
                 training = [samples[i] for i in sorted(set(range(len(samples))) - set(held))]
-                fit = held_out(model, training)
+                fit = fold_predictions(model, training)
                 windows = Predictions(fit.predictions.frame_pred, fit.predictions.frame_true,
                                       [fit.window_pred], [fit.window_true])
                 rows[f"fold {k}, training"] = coverage_metrics(windows)
                 low = fit.window_true < CLASS_EDGES[0]
-                rows[f"fold {k}, training"]["low_windows"] = (int(low.sum()), float(
-                    (fit.window_pred - fit.window_true)[low].mean()))
+                if low.any():
+                    rows[f"fold {k}, training"]["low_windows"] = (int(low.sum()), float(
+                        (fit.window_pred - fit.window_true)[low].mean()))
                 trained += [(frame[:, 1], s.frame_labels[:, 1], s.travel[:, 2]) for frame, s
                             in zip(fit.predictions.frame_pred, training, strict=True)]
         print(f"{run}:\n{format_table(rows)}")

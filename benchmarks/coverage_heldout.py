@@ -3,8 +3,10 @@
 Fits both stages (the run's config) on the procedures under --train, then prints their
 metrics on the procedures that fold --fold of `c2d2 train-coverage` run --run held out,
 beside that fold model's; without --fold, on every fold's held-out procedures pooled, beside
-the run's cross-validation. A like-for-like test of a change of training data (say, more and
-shorter procedures for as many frames), which the run's own cross-validation cannot make.
+the run's fold models. Both are uncalibrated (learned.calibration; the run's `cv_metrics.json`
+gives them as its `uncalibrated` entry). A like-for-like test of a change of training data
+(say, more and shorter procedures for as many frames), which the run's own cross-validation
+cannot make.
 The --train procedures must not include any of the run's (checked by name).
 
     python benchmarks/coverage_heldout.py --run data/runs/coverage-hops --fold 0 \

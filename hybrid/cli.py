@@ -488,11 +488,16 @@ def adapt(
     Each video is ingested and its depth computed as `c2d2 run` does (streamed), its 10-s
     segments resampled to the per-segment network's window, and windows taken every
     `segment_stride` frames of that resampled time. With --source, the same is done for
-    held-out synthetic videos, whose windows then give the source statistics.
+    held-out synthetic videos, whose windows then give the source statistics. Without it the
+    target is mapped onto the training windows' statistics, where the segment network is not
+    shrunk towards the mean, so its calibration (fitted on held-out windows) is turned off.
     """
     import tempfile
 
+    import torch
+
     from hybrid.pipeline import Models, RunConfig, video_features
+    from learned.calibration import identity_table
     from learned.coral import adapt as fit
     from learned.coral import set_source
     from learned.coverage_nets import resample_features
@@ -520,6 +525,10 @@ def adapt(
                                  stride)
             typer.echo(f"CORAL source statistics from {windows} held-out windows")
         windows = fit(models.coverage, features(target, Path(work) / "target"), stride)
+    if not source:
+        models.coverage.segment.calibration.copy_(torch.from_numpy(identity_table()))
+        typer.echo("segment calibration turned off (CORAL maps the target onto the training "
+                   "windows' statistics; give --source to keep it)")
     models.coverage.save(out)
     typer.echo(f"CORAL fitted on {windows} target windows: {out}")
 

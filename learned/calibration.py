@@ -3,9 +3,13 @@ coverage, fitted on cross-validated (out-of-fold) predictions.
 
 Stage 2 trains on the features of procedures that stage 1 has fitted closely, and sees noisier
 features on a new procedure; its outputs there shrink towards the mean (segments of low
-coverage come out too high, docs/coverage.md). An isotonic regression of the true coverage on
-the network's output over held-out windows undoes that. The map is kept as a table of its
-values at evenly spaced outputs in [0, 1], read by linear interpolation.
+coverage come out too high, docs/coverage.md). A centred isotonic regression of the true
+coverage on the network's output over held-out windows undoes part of that: the isotonic
+regression (scipy), then one knot per block of equal fitted values, at the block's mean output,
+joined by straight lines (Oron and Flournoy 2017), so that the map has no flat steps inside the
+outputs seen (a step across a class edge would send a whole range of outputs to one side of
+it). Beyond the outputs seen it is flat. The map is kept as a table of its values at evenly
+spaced outputs in [0, 1], read by linear interpolation.
 """
 
 from __future__ import annotations
@@ -26,8 +30,8 @@ def identity_table(knots: int = KNOTS) -> np.ndarray:
 
 
 def fit_table(pred: np.ndarray, true: np.ndarray, knots: int = KNOTS) -> np.ndarray:
-    """(knots,) non-decreasing table of the isotonic regression of `true` on `pred` (values in
-    [0, 1]), flat beyond the outputs seen."""
+    """(knots,) non-decreasing table of the centred isotonic regression of `true` on `pred`
+    (values in [0, 1])."""
     pred, true = np.asarray(pred, dtype=np.float64), np.asarray(true, dtype=np.float64)
     if pred.shape != true.shape or pred.ndim != 1 or len(pred) < 2 or \
             not (np.isfinite(pred).all() and np.isfinite(true).all()):
@@ -36,16 +40,20 @@ def fit_table(pred: np.ndarray, true: np.ndarray, knots: int = KNOTS) -> np.ndar
     outputs, which, counts = np.unique(pred, return_inverse=True, return_counts=True)
     means = np.bincount(which, weights=true) / counts  # equal outputs: one point, their mean
     fitted = np.clip(isotonic_regression(means, weights=counts).x, 0.0, 1.0)
-    return np.interp(np.linspace(0.0, 1.0, knots), outputs, fitted)
+    blocks = np.split(np.arange(len(fitted)), np.flatnonzero(np.diff(fitted)) + 1)
+    centres = [np.average(outputs[b], weights=counts[b]) for b in blocks]
+    return np.interp(np.linspace(0.0, 1.0, knots), centres, [fitted[b[0]] for b in blocks])
 
 
 def apply_table(table: torch.Tensor, values: torch.Tensor) -> torch.Tensor:
-    """The calibrated coverage of network outputs in [0, 1]: linear interpolation in the
-    table."""
-    position = values.clamp(0.0, 1.0) * (len(table) - 1)
+    """The calibrated coverage (float64) of network outputs in [0, 1]: linear interpolation in
+    the table; NaN stays NaN."""
+    table, values = table.double(), values.double()
+    position = values.nan_to_num(0.0).clamp(0.0, 1.0) * (len(table) - 1)
     low = position.floor().long().clamp(max=len(table) - 2)
     frac = position - low
-    return table[low] * (1.0 - frac) + table[low + 1] * frac
+    calibrated = table[low] * (1.0 - frac) + table[low + 1] * frac
+    return torch.where(values.isnan(), values, calibrated)
 
 
 def cross_fitted(pred_by_fold: list[np.ndarray],

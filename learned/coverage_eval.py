@@ -45,28 +45,28 @@ class Predictions:
 def coverage_metrics(predictions: Predictions) -> dict:
     """Per-frame MAE per Δ pair, per-segment MAE, bias and 3-class accuracy, with counts, and
     how well deficient segments (coverage below the lowest class edge) are found: the share of
-    them flagged (recall) and the share of flagged segments that are (precision)."""
+    them flagged (recall) and the share of flagged segments that are (precision). A figure
+    with nothing to average over (no segment, nothing flagged) is None."""
     frame_pred, frame_true, seg_pred, seg_true = predictions.arrays()
     out: dict = {}
     for k, pair in enumerate(DELTA_PAIRS_CM):
         ok = np.isfinite(frame_true[:, k])
-        out[f"frame_mae_{pair_key(pair)}"] = float(np.abs(frame_pred[ok, k] - frame_true[ok, k])
-                                                   .mean())
+        out[f"frame_mae_{pair_key(pair)}"] = _mean(np.abs(frame_pred[ok, k] - frame_true[ok, k]))
     out["frames"] = int(np.isfinite(frame_true).any(axis=1).sum())
     ok = np.isfinite(seg_true)
     error = seg_pred[ok] - seg_true[ok]
-    out["segment_mae"] = float(np.abs(error).mean()) if ok.any() else float("nan")
-    out["segment_bias"] = float(error.mean()) if ok.any() else float("nan")
-    out["segment_3class_accuracy"] = float(
-        (three_class(seg_pred[ok]) == three_class(seg_true[ok])).mean()) if ok.any() else float(
-        "nan")
+    out["segment_mae"] = _mean(np.abs(error))
+    out["segment_bias"] = _mean(error)
+    out["segment_3class_accuracy"] = _mean(three_class(seg_pred[ok]) == three_class(seg_true[ok]))
     out["segments"] = int(ok.sum())
     flagged, deficient = seg_pred[ok] < CLASS_EDGES[0], seg_true[ok] < CLASS_EDGES[0]
-    out["deficient_recall"] = float(flagged[deficient].mean()) if deficient.any() else float(
-        "nan")
-    out["deficient_precision"] = float(deficient[flagged].mean()) if flagged.any() else float(
-        "nan")
+    out["deficient_recall"] = _mean(flagged[deficient])
+    out["deficient_precision"] = _mean(deficient[flagged])
     return out
+
+
+def _mean(values: np.ndarray) -> float | None:
+    return float(np.mean(values)) if len(values) else None
 
 
 def format_table(rows: dict[str, dict]) -> str:
@@ -77,8 +77,9 @@ def format_table(rows: dict[str, dict]) -> str:
     head = f"{'':18s}" + "".join(f"{k.replace('segment_', 'seg_'):>16.15s}" for k in keys)
     lines = [head]
     for name, m in rows.items():
-        lines.append(f"{name:18.18s}" + "".join(f"{m[k]:16.4f}" if isinstance(m[k], float)
-                                                 else f"{m[k]:16d}" for k in keys))
+        lines.append(f"{name:18.18s}" + "".join(
+            f"{'n/a':>16s}" if m[k] is None else f"{m[k]:16d}" if isinstance(m[k], int)
+            else f"{m[k]:16.4f}" for k in keys))
     return "\n".join(lines)
 
 

@@ -7,7 +7,8 @@ frame for the three (Δ0, Δ1) pairs; its penultimate layer (global average of
 the last ResNet stage) is the frame's feature vector.
 Stage 2, `SegmentNet`: the T x F features of a segment -> six 1-D convolutions -> average over
 time -> an affine CORAL transform (identity until adapted) -> a fully connected layer -> one
-coverage in [0, 1], calibrated on the cross-validation (learned.calibration).
+coverage in [0, 1]. `CoverageModel.segment_outputs` then calibrates it by the table fitted on
+the cross-validation (learned.calibration) that the segment network holds.
 
 A mirrored colon is covered alike, so `CoverageModel` predicts from the four mirror views of
 each frame (`MIRRORS`): per-frame coverage is their mean, the features keep all four
@@ -154,7 +155,7 @@ class SegmentNet(nn.Module):
         self.fc = nn.Linear(cin, 1)
         # The output's calibration (learned.calibration), applied by CoverageModel's
         # segment_outputs; identity until train_coverage fits it on the cross-validation.
-        self.register_buffer("calibration", torch.from_numpy(identity_table()).float())
+        self.register_buffer("calibration", torch.from_numpy(identity_table()))  # float64
         self.register_load_state_dict_pre_hook(_uncalibrated_before)
 
     def embed(self, features: torch.Tensor) -> torch.Tensor:
@@ -248,13 +249,16 @@ class CoverageModel(nn.Module):
         return torch.cat(embedded)
 
     @torch.no_grad()
-    def segment_outputs(self, features: np.ndarray, starts: list[int]) -> np.ndarray:
+    def segment_outputs(self, features: np.ndarray, starts: list[int], calibrated: bool = True
+                        ) -> np.ndarray:
         """Coverage (S,) of the windows [s, s + T) of one video's (N, len(MIRRORS), F)
-        features: the mean over the mirror views, calibrated."""
+        features: the mean over the mirror views, calibrated unless asked not to."""
         embedded = self.segment_embeddings(features, starts)
         values = self.segment.head(embedded.flatten(0, 1)).view(len(starts), len(MIRRORS))
-        calibrated = apply_table(self.segment.calibration, values.mean(dim=1))
-        return calibrated.cpu().numpy().astype(np.float64)
+        values = values.mean(dim=1).double()
+        if calibrated:
+            values = apply_table(self.segment.calibration, values)
+        return values.cpu().numpy()
 
     def save(self, path: Path, step: int = 0) -> None:
         save_checkpoint(path, {"frame": self.frame, "segment": self.segment},

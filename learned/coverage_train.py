@@ -188,31 +188,32 @@ def predict(model: CoverageModel, samples: ProcedureSamples) -> tuple[np.ndarray
 
 
 @dataclass
-class HeldOut:
-    """One fold model's predictions on its held-out procedures, uncalibrated, and its held-out
-    training windows (predictions, labels) that the calibration is fitted on."""
+class FoldPredictions:
+    """A model's uncalibrated predictions on some procedures, and on their windows every
+    `segment_stride` frames (predictions, labels: what the calibration is fitted on)."""
 
     predictions: Predictions
     window_pred: np.ndarray
     window_true: np.ndarray
 
 
-def held_out(model: CoverageModel, samples: list[ProcedureSamples], progress: bool = False
-             ) -> HeldOut:
-    """A fold model's (uncalibrated) predictions on procedures it was not trained on."""
+def fold_predictions(model: CoverageModel, samples: list[ProcedureSamples],
+                     progress: bool = False) -> FoldPredictions:
+    """`model`'s uncalibrated predictions on the procedures (for a fold model, its held-out
+    ones)."""
     predictions, window_pred, window_true = Predictions(), [], []
-    for s in tqdm(samples, desc="held-out predictions", disable=not progress):
+    for s in tqdm(samples, desc="predictions", disable=not progress):
         frame, features = model.frame_outputs(s.inputs, s.cues)
-        predictions.add(frame, s.frame_labels,
-                        model.segment_outputs(features, s.segment_starts.tolist()),
-                        s.segment_labels)
+        predictions.add(frame, s.frame_labels, model.segment_outputs(
+            features, s.segment_starts.tolist(), calibrated=False), s.segment_labels)
         labelled = np.isfinite(s.window_labels)
-        window_pred.append(model.segment_outputs(features, s.window_starts[labelled].tolist()))
+        window_pred.append(model.segment_outputs(features, s.window_starts[labelled].tolist(),
+                                                 calibrated=False))
         window_true.append(s.window_labels[labelled])
-    return HeldOut(predictions, np.concatenate(window_pred), np.concatenate(window_true))
+    return FoldPredictions(predictions, np.concatenate(window_pred), np.concatenate(window_true))
 
 
-def calibrated_cv(folds: list[HeldOut]) -> Predictions:
+def calibrated_cv(folds: list[FoldPredictions]) -> Predictions:
     """The folds' predictions pooled, each fold's segments calibrated on the other folds'
     windows."""
     segments = cross_fitted([np.concatenate(f.predictions.segment_pred) for f in folds],
@@ -307,7 +308,7 @@ def train_coverage(data: list[Path], out: Path, config: CoverageConfig,
             model = fit_model(train, config, lambda e, k=k: log(e, str(k)), progress, device)
             model.save(path)
             record["seconds"][f"fold_{k}"] = round(time.time() - tic, 1)
-        folds.append(held_out(model, [samples[i] for i in held], progress))
+        folds.append(fold_predictions(model, [samples[i] for i in held], progress))
     if folds:
         cv = calibrated_cv(folds)
         raw = Predictions()
@@ -321,9 +322,12 @@ def train_coverage(data: list[Path], out: Path, config: CoverageConfig,
                       f"procedures)")
         logger.info("\n%s", format_table({f"{config.folds}-fold CV": metrics,
                                           "uncalibrated": metrics["uncalibrated"]}))
+        table = fit_table(np.concatenate([f.window_pred for f in folds]),
+                          np.concatenate([f.window_true for f in folds]))
     else:
         logger.warning("no cross-validation (folds=%d): the segment coverage is left "
                        "uncalibrated", config.folds)
+        table = identity_table()
     final = out / "model.safetensors"
     if final.is_file():
         model = load_coverage_model(final, device=device)
@@ -331,9 +335,6 @@ def train_coverage(data: list[Path], out: Path, config: CoverageConfig,
         tic = time.time()
         model = fit_model(samples, config, log, progress, device)
         record["seconds"]["final"] = round(time.time() - tic, 1)
-    table = identity_table() if not folds else fit_table(
-        np.concatenate([f.window_pred for f in folds]),
-        np.concatenate([f.window_true for f in folds]))
     model.segment.calibration.copy_(torch.from_numpy(table))
     model.save(final)
     record["seconds"]["total_this_call"] = round(time.time() - started, 1)

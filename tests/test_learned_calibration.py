@@ -34,13 +34,23 @@ def test_fit_table_is_flat_beyond_the_outputs_seen_and_refuses_bad_input():
             fit_table(pred, true)
 
 
+def test_fit_table_joins_the_centres_of_the_isotonic_blocks():
+    # Isotonic: 0.1, then 0.5 and 0.3 pooled to 0.4, then 0.9; the pooled block's knot sits at
+    # its mean output 0.5, so there is no flat step from 0.4 to 0.6.
+    table = fit_table(np.array([0.2, 0.4, 0.6, 0.8]), np.array([0.1, 0.5, 0.3, 0.9]))
+    grid = np.linspace(0, 1, len(table))
+    np.testing.assert_allclose(np.interp([0.1, 0.35, 0.5, 0.65, 0.9], grid, table),
+                               [0.1, 0.25, 0.4, 0.65, 0.9], atol=1e-9)
+
+
 def test_apply_table_interpolates_linearly():
     table = torch.tensor([0.0, 0.2, 1.0])  # knots at outputs 0, 0.5, 1
-    values = torch.tensor([0.0, 0.25, 0.5, 0.75, 1.0, 1.5, -0.5])
-    expected = torch.tensor([0.0, 0.1, 0.2, 0.6, 1.0, 1.0, 0.0])
-    assert torch.allclose(apply_table(table, values), expected)
-    identity = torch.from_numpy(identity_table())
-    assert torch.allclose(apply_table(identity, values.clamp(0, 1)), values.clamp(0, 1).double())
+    values = torch.tensor([0.0, 0.25, 0.5, 0.75, 1.0, 1.5, -0.5, float("nan")])
+    expected = torch.tensor([0.0, 0.1, 0.2, 0.6, 1.0, 1.0, 0.0, float("nan")], dtype=torch.float64)
+    assert torch.allclose(apply_table(table, values), expected, equal_nan=True)
+    identity = torch.from_numpy(identity_table()).float()  # as the model holds it
+    values = torch.rand(1000)
+    assert (apply_table(identity, values) - values.double()).abs().max() < 1e-7
 
 
 def test_cross_fit_never_calibrates_a_fold_on_itself():

@@ -22,7 +22,6 @@ from learned.checkpoint import save_checkpoint
 from learned.config import COVERAGE_PRESETS, coverage_config, parse_overrides
 from learned.coral import adapt, coral_transform, set_source
 from learned.coverage_data import ProcedureSamples, procedure_samples
-from learned.coverage_eval import coverage_metrics
 from learned.coverage_nets import (
     MIRRORS,
     CoverageModel,
@@ -35,9 +34,8 @@ from learned.coverage_nets import (
     resample_features,
 )
 from learned.coverage_train import (
-    calibrated_cv,
+    fold_predictions,
     fold_split,
-    held_out,
     load_run,
     powered,
     train_frame_net,
@@ -308,6 +306,11 @@ def test_a_mirrored_video_gets_the_same_coverage():
     np.testing.assert_allclose(model.segment_outputs(features_lr, [0, 10]),
                                model.segment_outputs(features, [0, 10]), atol=1e-6)
     assert model.segment_outputs(features, []).shape == (0,)
+    # A segment's coverage goes through the model's calibration table.
+    raw = model.segment_outputs(features, [0, 10], calibrated=False)
+    with torch.no_grad():
+        model.segment.calibration.copy_(torch.linspace(0.2, 0.6, 101, dtype=torch.float64))
+    np.testing.assert_allclose(model.segment_outputs(features, [0, 10]), 0.2 + 0.4 * raw)
 
 
 def test_training_reduces_both_losses_on_a_tiny_set():
@@ -526,17 +529,21 @@ def test_train_eval_and_adapt_commands(tmp_path, two_procedures):
     assert [f.tolist() for f in folds] == [f.tolist() for f in fold_split(2, 2, 0)]
     # The cross-validation's segments are calibrated fold by fold on the other fold's held-out
     # windows, and the shipped model on both folds' windows.
-    held = [held_out(load_coverage_model(run / f"fold-{k}.safetensors"),
-                     [samples[i] for i in f]) for k, f in enumerate(folds)]
-    assert cv["segment_mae"] == pytest.approx(
-        coverage_metrics(calibrated_cv(held))["segment_mae"])
-    assert cv["uncalibrated"]["segment_mae"] == pytest.approx(np.mean(np.abs(np.concatenate(
-        [np.concatenate(h.predictions.segment_pred) - np.concatenate(h.predictions.segment_true)
-         for h in held]))))
+    held = [fold_predictions(load_coverage_model(run / f"fold-{k}.safetensors"),
+                             [samples[i] for i in f]) for k, f in enumerate(folds)]
+    raw = [np.concatenate(h.predictions.segment_pred) for h in held]
+    true = np.concatenate([np.concatenate(h.predictions.segment_true) for h in held])
+    calibrated = np.concatenate([
+        np.interp(raw[k], np.linspace(0, 1, 101), fit_table(held[1 - k].window_pred,
+                                                            held[1 - k].window_true))
+        for k in (0, 1)])
+    assert cv["segment_mae"] == pytest.approx(np.abs(calibrated - true).mean())
+    assert cv["uncalibrated"]["segment_mae"] == pytest.approx(
+        np.abs(np.concatenate(raw) - true).mean())
     table = fit_table(np.concatenate([h.window_pred for h in held]),
                       np.concatenate([h.window_true for h in held]))
     final = load_coverage_model(run / "model.safetensors").segment.calibration.numpy()
-    np.testing.assert_allclose(final, table, atol=1e-6)
+    np.testing.assert_allclose(final, table, atol=1e-12)
     assert np.abs(final - identity_table()).max() > 0.01
     (run / "record.json").write_text(json.dumps({**record, "procedures": ["other/proc"] * 2}))
     with pytest.raises(InputError, match="no longer those of"):
@@ -561,6 +568,9 @@ def test_train_eval_and_adapt_commands(tmp_path, two_procedures):
     net = load_coverage_model(adapted).segment
     assert not torch.allclose(net.coral_matrix, torch.eye(len(net.coral_matrix)))
     trained_source = net.source_mean.clone()
+    # Mapped onto the training windows' statistics, the model is not calibrated.
+    assert "calibration turned off" in result.output
+    np.testing.assert_array_equal(net.calibration.numpy(), identity_table())
 
     result = runner.invoke(app, ["adapt", "--target", str(two_procedures), "--out", str(adapted),
                                  "--source", str(two_procedures / "proc_0000"),
@@ -570,6 +580,10 @@ def test_train_eval_and_adapt_commands(tmp_path, two_procedures):
     assert result.exit_code == 0, result.output
     assert "source statistics from 5 held-out windows" in result.output  # (40 - 20) / 5 + 1
     assert not torch.allclose(load_coverage_model(adapted).segment.source_mean, trained_source)
+    # Mapped onto held-out statistics, it keeps the calibration fitted on held-out windows.
+    assert "calibration turned off" not in result.output
+    np.testing.assert_array_equal(load_coverage_model(adapted).segment.calibration.numpy(),
+                                  final)
 
 
 def test_field_of_view_inputs_of_a_simulated_procedure(tmp_path, two_procedures):
