@@ -20,21 +20,19 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from scipy.optimize import isotonic_regression
 
-from learned.calibration import fit_table
+from learned.calibration import KNOTS, cross_fitted, fit_table, pooled_isotonic
 from learned.coverage_eval import CLASS_EDGES, three_class
 from learned.coverage_nets import load_coverage_model
 from learned.coverage_train import fold_predictions, load_run
 
-GRID = np.linspace(0.0, 1.0, 101)
+GRID = np.linspace(0.0, 1.0, KNOTS)
 
 
 def plain_isotonic(pred: np.ndarray, true: np.ndarray) -> np.ndarray:
     """The isotonic regression read at GRID, with its flat steps."""
-    outputs, which, counts = np.unique(pred, return_inverse=True, return_counts=True)
-    fitted = isotonic_regression(np.bincount(which, weights=true) / counts, weights=counts).x
-    return np.interp(GRID, outputs, np.clip(fitted, 0.0, 1.0))
+    outputs, _, fitted = pooled_isotonic(pred, true)
+    return np.interp(GRID, outputs, fitted)
 
 
 def straight_line(pred: np.ndarray, true: np.ndarray) -> np.ndarray:
@@ -58,10 +56,8 @@ def main() -> None:
     true = np.concatenate([np.concatenate(h.predictions.segment_true) for h in held])
     labelled, low = np.isfinite(true), true < CLASS_EDGES[0]
     for name, fit in WAYS.items():
-        pred = np.concatenate([np.interp(raw[k], GRID, fit(
-            np.concatenate([h.window_pred for j, h in enumerate(held) if j != k]),
-            np.concatenate([h.window_true for j, h in enumerate(held) if j != k])))
-            for k in range(len(held))])
+        pred = np.concatenate(cross_fitted(raw, [(h.window_pred, h.window_true) for h in held],
+                                           fit))
         error, flagged = pred - true, pred < CLASS_EDGES[0]
         false = (flagged & ~low & labelled).sum()
         print(f"{name:17s} segment MAE {np.abs(error[labelled]).mean():.4f}  bias "

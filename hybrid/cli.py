@@ -414,14 +414,16 @@ def train_coverage(
                                                           "per-frame net reads (default: the "
                                                           "shipped one).")] = None,
     folds: Annotated[int | None, typer.Option(help="Cross-validation folds by procedure "
-                                              "(0: none).")] = None,
+                                              "(0: none, and the segment coverage is left "
+                                              "uncalibrated).")] = None,
     seed: Annotated[int | None, typer.Option(help="Random seed.")] = None,
     set_: Annotated[list[str] | None, typer.Option(
         "--set", help="Override a config field, e.g. --set input_depth=true (see "
         "learned/config.py CoverageConfig).")] = None,
     device: Device = "auto",
 ):
-    """Train the per-frame then the per-segment coverage network, with k-fold CV; resumes."""
+    """Train the per-frame then the per-segment coverage network, with k-fold CV, and calibrate
+    the segment coverage on the CV's held-out windows; resumes."""
     from learned.config import COVERAGE_PRESETS, coverage_config, parse_overrides
     from learned.coverage_train import train_coverage as run
     from learned.device import pick_device
@@ -446,7 +448,8 @@ def eval_coverage(
                                                           "shipped one).")] = None,
     device: Device = "auto",
 ):
-    """Per-frame MAE per Δ pair, per-segment MAE and 3-class accuracy, with scatter plots."""
+    """Per-frame MAE per Δ pair, per-segment MAE, bias and 3-class accuracy, deficient
+    segments found (recall, precision), with scatter plots."""
     from learned.coverage_eval import coverage_metrics, format_table, scatter_plots
     from learned.coverage_nets import load_coverage_model
     from learned.coverage_train import evaluate, load_samples
@@ -488,16 +491,14 @@ def adapt(
     Each video is ingested and its depth computed as `c2d2 run` does (streamed), its 10-s
     segments resampled to the per-segment network's window, and windows taken every
     `segment_stride` frames of that resampled time. With --source, the same is done for
-    held-out synthetic videos, whose windows then give the source statistics. Without it the
-    target is mapped onto the training windows' statistics, where the segment network is not
-    shrunk towards the mean, so its calibration (fitted on held-out windows) is turned off.
+    held-out synthetic videos, whose windows then give the source statistics. Without it (and
+    unless the model was adapted with it before) the target is mapped onto the training
+    windows' statistics, where the segment network is not shrunk towards the mean, so its
+    calibration (fitted on held-out windows) is not applied; the table is kept.
     """
     import tempfile
 
-    import torch
-
     from hybrid.pipeline import Models, RunConfig, video_features
-    from learned.calibration import identity_table
     from learned.coral import adapt as fit
     from learned.coral import set_source
     from learned.coverage_nets import resample_features
@@ -525,10 +526,9 @@ def adapt(
                                  stride)
             typer.echo(f"CORAL source statistics from {windows} held-out windows")
         windows = fit(models.coverage, features(target, Path(work) / "target"), stride)
-    if not source:
-        models.coverage.segment.calibration.copy_(torch.from_numpy(identity_table()))
-        typer.echo("segment calibration turned off (CORAL maps the target onto the training "
-                   "windows' statistics; give --source to keep it)")
+    if not models.coverage.segment.calibrates():
+        typer.echo("the segment calibration is not applied (CORAL maps the target onto the "
+                   "training windows' statistics; give --source to apply it)")
     models.coverage.save(out)
     typer.echo(f"CORAL fitted on {windows} target windows: {out}")
 

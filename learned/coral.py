@@ -72,6 +72,7 @@ def set_source(model: CoverageModel, source_features: list[np.ndarray], stride: 
     rows = embedded.reshape(-1, embedded.shape[-1])
     model.segment.source_mean.copy_(torch.from_numpy(rows.mean(0)).float())
     model.segment.source_cov.copy_(torch.from_numpy(np.cov(rows, rowvar=False)).float())
+    model.segment.held_out_source.fill_(1.0)
     return len(embedded)
 
 

@@ -155,8 +155,11 @@ class SegmentNet(nn.Module):
         self.fc = nn.Linear(cin, 1)
         # The output's calibration (learned.calibration), applied by CoverageModel's
         # segment_outputs; identity until train_coverage fits it on the cross-validation.
+        # held_out_source: 1 once set_source has put held-out windows' statistics in place of
+        # the training windows' (see calibrates).
         self.register_buffer("calibration", torch.from_numpy(identity_table()))  # float64
-        self.register_load_state_dict_pre_hook(_uncalibrated_before)
+        self.register_buffer("held_out_source", torch.zeros(()))
+        self.register_load_state_dict_pre_hook(_defaults_before)
 
     def embed(self, features: torch.Tensor) -> torch.Tensor:
         """The second-to-last layer: (B, T, F) -> (B, C), before the CORAL transform."""
@@ -171,10 +174,21 @@ class SegmentNet(nn.Module):
     def forward(self, features: torch.Tensor) -> torch.Tensor:
         return self.head(self.embed(features))
 
+    def calibrates(self) -> bool:
+        """Whether the calibration table applies. It was fitted on held-out outputs, which the
+        network shrinks towards the mean; CORAL onto the training windows' statistics maps a
+        target into the unshrunk regime of the training windows, so then it does not."""
+        unadapted = torch.equal(self.coral_matrix, torch.eye(len(self.coral_matrix),
+                                                             device=self.coral_matrix.device)) \
+            and not self.coral_offset.any()
+        return unadapted or bool(self.held_out_source)
 
-def _uncalibrated_before(module, state_dict, prefix, *args) -> None:
-    """Checkpoints saved before the calibration existed are uncalibrated: identity."""
+
+def _defaults_before(module, state_dict, prefix, *args) -> None:
+    """Checkpoints saved before the calibration existed are uncalibrated (identity) and, if
+    adapted, were adapted onto the training windows' statistics."""
     state_dict.setdefault(prefix + "calibration", module.calibration.new_tensor(identity_table()))
+    state_dict.setdefault(prefix + "held_out_source", module.held_out_source.new_zeros(()))
 
 
 def count_parameters(module: nn.Module) -> int:
@@ -252,11 +266,12 @@ class CoverageModel(nn.Module):
     def segment_outputs(self, features: np.ndarray, starts: list[int], calibrated: bool = True
                         ) -> np.ndarray:
         """Coverage (S,) of the windows [s, s + T) of one video's (N, len(MIRRORS), F)
-        features: the mean over the mirror views, calibrated unless asked not to."""
+        features: the mean over the mirror views, calibrated where the table applies
+        (`SegmentNet.calibrates`) unless asked not to."""
         embedded = self.segment_embeddings(features, starts)
         values = self.segment.head(embedded.flatten(0, 1)).view(len(starts), len(MIRRORS))
         values = values.mean(dim=1).double()
-        if calibrated:
+        if calibrated and self.segment.calibrates():
             values = apply_table(self.segment.calibration, values)
         return values.cpu().numpy()
 

@@ -311,6 +311,16 @@ def test_a_mirrored_video_gets_the_same_coverage():
     with torch.no_grad():
         model.segment.calibration.copy_(torch.linspace(0.2, 0.6, 101, dtype=torch.float64))
     np.testing.assert_allclose(model.segment_outputs(features, [0, 10]), 0.2 + 0.4 * raw)
+    # Adapted by CORAL onto the training windows' statistics, the table does not apply; onto
+    # held-out ones, it does.
+    with torch.no_grad():
+        model.segment.coral_offset.fill_(0.5)
+    adapted = model.segment_outputs(features, [0, 10], calibrated=False)
+    assert np.abs(adapted - raw).max() > 1e-4
+    np.testing.assert_array_equal(model.segment_outputs(features, [0, 10]), adapted)
+    with torch.no_grad():
+        model.segment.held_out_source.fill_(1.0)
+    np.testing.assert_allclose(model.segment_outputs(features, [0, 10]), 0.2 + 0.4 * adapted)
 
 
 def test_training_reduces_both_losses_on_a_tiny_set():
@@ -568,9 +578,11 @@ def test_train_eval_and_adapt_commands(tmp_path, two_procedures):
     net = load_coverage_model(adapted).segment
     assert not torch.allclose(net.coral_matrix, torch.eye(len(net.coral_matrix)))
     trained_source = net.source_mean.clone()
-    # Mapped onto the training windows' statistics, the model is not calibrated.
-    assert "calibration turned off" in result.output
-    np.testing.assert_array_equal(net.calibration.numpy(), identity_table())
+    # Mapped onto the training windows' statistics, the table is kept but not applied.
+    assert "calibration is not applied" in result.output
+    np.testing.assert_array_equal(net.calibration.numpy(), final)
+    assert load_coverage_model(run / "model.safetensors").segment.calibrates()
+    assert not net.calibrates()
 
     result = runner.invoke(app, ["adapt", "--target", str(two_procedures), "--out", str(adapted),
                                  "--source", str(two_procedures / "proc_0000"),
@@ -580,10 +592,16 @@ def test_train_eval_and_adapt_commands(tmp_path, two_procedures):
     assert result.exit_code == 0, result.output
     assert "source statistics from 5 held-out windows" in result.output  # (40 - 20) / 5 + 1
     assert not torch.allclose(load_coverage_model(adapted).segment.source_mean, trained_source)
-    # Mapped onto held-out statistics, it keeps the calibration fitted on held-out windows.
-    assert "calibration turned off" not in result.output
-    np.testing.assert_array_equal(load_coverage_model(adapted).segment.calibration.numpy(),
-                                  final)
+    # Mapped onto held-out statistics, the calibration fitted on held-out windows applies, and
+    # still applies when that model is adapted again without --source.
+    assert "calibration is not applied" not in result.output
+    assert load_coverage_model(adapted).segment.calibrates()
+    again = tmp_path / "again.safetensors"
+    result = runner.invoke(app, ["adapt", "--target", str(two_procedures), "--out", str(again),
+                                 "--model", str(adapted), "--depth-checkpoint", str(depth),
+                                 "--segment-seconds", str(20 / 30)])
+    assert result.exit_code == 0 and "calibration is not applied" not in result.output
+    assert load_coverage_model(again).segment.calibrates()
 
 
 def test_field_of_view_inputs_of_a_simulated_procedure(tmp_path, two_procedures):
