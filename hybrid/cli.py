@@ -216,7 +216,8 @@ def eval_pipeline(
     out: Annotated[Path, typer.Option(help="Work folders per procedure and eval.json.")],
     device: Device = "auto",
 ):
-    """MAE of learned and geometric coverage against the truth, and the branches' agreement."""
+    """MAE of learned, geometric and combined coverage against the truth, and the branches'
+    agreement, with 95% intervals bootstrapped over procedures."""
     from hybrid.dataset import Procedure
     from hybrid.evaluate import evaluate_pipeline
     from hybrid.pipeline import Models, RunConfig

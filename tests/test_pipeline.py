@@ -26,6 +26,7 @@ from hybrid import workdir as W
 from hybrid.cli import app
 from hybrid.crosscheck import cross_check
 from hybrid.dataset import Procedure
+from hybrid.evaluate import summarise
 from hybrid.ingest import Ingested
 from hybrid.pipeline import Models, RunConfig, run_video, video_features
 from hybrid.sim.simulate import SimConfig, simulate_procedure, with_overrides
@@ -628,3 +629,29 @@ def test_cross_check_without_the_geometric_branch(tmp_path):
     assert [r.coverage for r in table.rows] == [0.90, 0.30, 0.50, 0.20, 0.40]
     # learned alone: 0.30 is now deficient, 0.50 no longer; 0.20 is not assessable
     assert [r.deficient for r in table.rows] == [False, True, False, False, False]
+
+
+def test_eval_summary_by_hand():
+    def row(procedure, truth, learned, geometric):
+        combined = learned if geometric is None else 0.5 * (learned + geometric)
+        return {"procedure": procedure, "segment": 0, "truth": truth, "learned": learned,
+                "geometric": geometric, "combined": combined}
+
+    # a: learned off by 0.2 and in another class than the geometric branch; b: both exact.
+    rows = [row("a", 0.5, 0.7, 0.5), row("a", 0.5, 0.3, None), row("b", 0.9, 0.9, 0.9)]
+    summary = summarise(rows)
+    assert summary["learned"]["mae"] == pytest.approx(0.4 / 3)
+    assert summary["learned"]["bias"] == pytest.approx(0.0)
+    assert summary["learned"]["3class"] == pytest.approx(2 / 3)  # 0.3 is class 0, 0.5 class 1
+    assert summary["geometric"] == {"mae": 0.0, "bias": 0.0, "3class": 1.0, "segments": 2,
+                                    "mae_ci95": [0.0, 0.0]}
+    assert summary["combined"]["mae"] == pytest.approx((0.1 + 0.2 + 0.0) / 3)
+    assert summary["branch_agreement"] == 1.0  # the segment without geometry is skipped
+    # Resampling the two procedures gives a and a (learned MAE 0.2), a and b (0.4 / 3) or b
+    # and b (0), with chances 1/4, 1/2, 1/4: the 2.5% and 97.5% points are 0 and 0.2.
+    assert summary["learned"]["mae_ci95"] == pytest.approx([0.0, 0.2])
+    assert summary["procedures"] == 2
+
+    one = summarise(rows[:2])
+    assert one["learned"]["mae"] == pytest.approx(0.2)
+    assert one["learned"]["mae_ci95"] is None and one["branch_agreement_ci95"] is None
