@@ -415,16 +415,17 @@ def train_coverage(
                                                           "per-frame net reads (default: the "
                                                           "shipped one).")] = None,
     folds: Annotated[int | None, typer.Option(help="Cross-validation folds by procedure "
-                                              "(0: none, and the segment coverage is left "
-                                              "uncalibrated).")] = None,
+                                              "(0: none; calibrate=true then calibrates "
+                                              "nothing).")] = None,
     seed: Annotated[int | None, typer.Option(help="Random seed.")] = None,
     set_: Annotated[list[str] | None, typer.Option(
         "--set", help="Override a config field, e.g. --set input_depth=true (see "
         "learned/config.py CoverageConfig).")] = None,
     device: Device = "auto",
 ):
-    """Train the per-frame then the per-segment coverage network, with k-fold CV, and calibrate
-    the segment coverage on the CV's held-out windows; resumes."""
+    """Train the per-frame then the per-segment coverage network, with k-fold CV; resumes.
+    With --set calibrate=true the final segment coverage is calibrated on the CV's held-out
+    windows."""
     from learned.config import COVERAGE_PRESETS, coverage_config, parse_overrides
     from learned.coverage_train import train_coverage as run
     from learned.device import pick_device
@@ -494,8 +495,8 @@ def adapt(
     `segment_stride` frames of that resampled time. With --source, the same is done for
     held-out synthetic videos, whose windows then give the source statistics. Without it (and
     unless the model was adapted with it before) the target is mapped onto the training
-    windows' statistics, where the segment network is not shrunk towards the mean, so its
-    calibration (fitted on held-out windows) is not applied; the table is kept.
+    windows' statistics, where the segment network is not shrunk towards the mean, so a
+    calibrated model's table (fitted on held-out windows) is kept but not applied.
     """
     import tempfile
 
@@ -527,7 +528,7 @@ def adapt(
                                  stride)
             typer.echo(f"CORAL source statistics from {windows} held-out windows")
         windows = fit(models.coverage, features(target, Path(work) / "target"), stride)
-    if not models.coverage.segment.calibrates():
+    if models.coverage.segment.holds_table() and not models.coverage.segment.calibrates():
         typer.echo("the segment calibration is not applied (CORAL maps the target onto the "
                    "training windows' statistics; give --source to apply it)")
     models.coverage.save(out)

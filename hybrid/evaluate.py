@@ -28,6 +28,12 @@ KEYS = ("truth", "learned", "geometric", "combined")
 """The coverages of a segment that eval compares."""
 
 
+def _columns(rows: list[dict]) -> dict[str, np.ndarray]:
+    """Each of KEYS over rows as a float array, NaN where a row has None."""
+    return {k: np.array([np.nan if r[k] is None else r[k] for r in rows], dtype=float)
+            for k in KEYS}
+
+
 def _stats(pred: np.ndarray, truth: np.ndarray) -> dict:
     ok = np.isfinite(pred) & np.isfinite(truth)
     if not ok.any():
@@ -37,8 +43,15 @@ def _stats(pred: np.ndarray, truth: np.ndarray) -> dict:
             "3class": _agreement(pred[ok], truth[ok]), "segments": int(ok.sum())}
 
 
+def _mae(a: np.ndarray, b: np.ndarray) -> float:
+    """Mean |a - b| over the pairs where both are finite."""
+    ok = np.isfinite(a) & np.isfinite(b)
+    return float(np.abs(a[ok] - b[ok]).mean())
+
+
 def _agreement(a: np.ndarray, b: np.ndarray) -> float:
-    """Share of segments where a and b fall in the same 3-class bin (NaN pairs skipped)."""
+    """Share of the pairs, both finite, where a and b fall in the same 3-class bin (NaN if
+    none)."""
     ok = np.isfinite(a) & np.isfinite(b)
     return float(np.mean(three_class(a[ok]) == three_class(b[ok]))) if ok.any() else np.nan
 
@@ -47,39 +60,34 @@ def summarise(rows: list[dict], resamples: int = 2000, seed: int = 0) -> dict:
     """MAE, bias and 3-class accuracy against the truth of each branch and of the report's
     combined coverage, and the 3-class agreement between the branches, over rows (one per
     segment: procedure, truth, learned, geometric, combined; None where there is no value).
-    Each MAE and the agreement also get a 95% interval from a percentile bootstrap over
-    procedures (segments of one procedure are not independent); None with fewer than two
-    procedures."""
+    Each MAE and the agreement also get a 95% interval from a percentile bootstrap over the
+    procedures that have a value for it (segments of one procedure are not independent);
+    None with fewer than two such procedures."""
     names = list(dict.fromkeys(r["procedure"] for r in rows))
-    per_procedure = [{k: np.array([np.nan if r[k] is None else r[k] for r in rows
-                                   if r["procedure"] == name], dtype=float)
-                      for k in KEYS} for name in names]
+    per_procedure = [_columns([r for r in rows if r["procedure"] == name]) for name in names]
 
-    def pooled(picks) -> dict[str, np.ndarray]:
-        return {k: np.concatenate([per_procedure[i][k] for i in picks]) for k in KEYS}
-
-    def interval(statistic) -> list[float] | None:
-        if len(names) < 2:
+    def interval(a: str, b: str, statistic) -> list[float] | None:
+        have = [p for p in per_procedure if (np.isfinite(p[a]) & np.isfinite(p[b])).any()]
+        if len(have) < 2:
             return None
+
+        def resampled(picks: np.ndarray) -> float:
+            return statistic(*(np.concatenate([have[i][k] for i in picks]) for k in (a, b)))
+
         bounds = scipy.stats.bootstrap(
-            (np.arange(len(names)),), lambda picks: statistic(pooled(picks)),
-            vectorized=False, n_resamples=resamples, method="percentile",
-            random_state=seed).confidence_interval
-        return None if np.isnan(bounds).any() else [float(bounds.low), float(bounds.high)]
+            (np.arange(len(have)),), resampled, vectorized=False, n_resamples=resamples,
+            method="percentile", random_state=seed).confidence_interval
+        return [float(bounds.low), float(bounds.high)]
 
-    def mae(branch: str):
-        return lambda v: float(np.nanmean(np.abs(v[branch] - v["truth"])))
-
-    values = pooled(range(len(names)))
+    values = _columns(rows)
     summary = {}
     for branch in KEYS[1:]:
         stats = _stats(values[branch], values["truth"])
-        stats["mae_ci95"] = interval(mae(branch)) if stats["segments"] else None
+        stats["mae_ci95"] = interval(branch, "truth", _mae)
         summary[branch] = stats
     agree = _agreement(values["learned"], values["geometric"])
     summary["branch_agreement"] = None if np.isnan(agree) else agree
-    summary["branch_agreement_ci95"] = None if np.isnan(agree) else interval(
-        lambda v: _agreement(v["learned"], v["geometric"]))
+    summary["branch_agreement_ci95"] = interval("learned", "geometric", _agreement)
     summary["procedures"] = len(names)
     return summary
 
@@ -115,8 +123,7 @@ def evaluate_pipeline(procedures: list[Procedure], out: Path, config: RunConfig,
 def _scatter(rows: list[dict], path: Path) -> None:
     import matplotlib.pyplot as plt
 
-    values = {k: np.array([np.nan if r[k] is None else r[k] for r in rows], dtype=float)
-              for k in KEYS}
+    values = _columns(rows)
     fig, axes = plt.subplots(1, 4, figsize=(17, 4.3))
     pairs = [("truth", "learned"), ("truth", "geometric"), ("truth", "combined"),
              ("geometric", "learned")]

@@ -248,6 +248,11 @@ class CoverageConfig:
     """Frames per segment (T)."""
     segment_stride: int = 30
     """Start-to-start frames of the overlapping training windows."""
+    calibrate: bool = False
+    """Map the final model's segment output through a monotone table fitted on the
+    cross-validation's held-out windows (learned.calibration). Off as shipped: it helped the
+    cross-validation and hurt 24 held-out procedures of another length (docs/coverage.md);
+    cv_metrics.json reports the cross-fitted calibrated figures either way."""
     segment_channels: tuple[int, ...] = (8, 16, 16, 16, 16, 16)
     """Output channels of the per-segment network's six 1-D convolutions."""
     segment_kernels: tuple[int, ...] = (1, 5, 5, 5, 5, 5)

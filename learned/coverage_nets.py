@@ -174,6 +174,10 @@ class SegmentNet(nn.Module):
     def forward(self, features: torch.Tensor) -> torch.Tensor:
         return self.head(self.embed(features))
 
+    def holds_table(self) -> bool:
+        """Whether the model holds a calibration table other than the identity."""
+        return not torch.equal(self.calibration, self.calibration.new_tensor(identity_table()))
+
     def calibrates(self) -> bool:
         """Whether the calibration table applies. It was fitted on held-out outputs, which the
         network shrinks towards the mean; CORAL onto the training windows' statistics maps a

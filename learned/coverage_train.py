@@ -3,10 +3,12 @@ k-fold cross-validation split by procedure.
 
 Writes into the run folder: `fold-K.safetensors` (one model per fold, uncalibrated, so an
 interrupted run resumes at the next fold), `cv_metrics.json` and `cv_scatter.png` (predictions on
-each fold's held-out procedures, pooled; each fold's segments calibrated on the other folds'
-held-out windows), `model.safetensors` (trained on every procedure, its segment coverage
-calibrated on all the folds' held-out windows: the model that ships), `train_log.jsonl`
-(losses) and `record.json` (config, data, depth model, times).
+each fold's held-out procedures, pooled, read as the final model reads; with `calibrate` each
+fold's segments are calibrated on the other folds' held-out windows; the other reading is
+under the key `uncalibrated` or `calibrated`), `model.safetensors` (trained on every
+procedure, the model that ships; with `calibrate` its segment coverage is calibrated on all
+the folds' held-out windows), `train_log.jsonl` (losses) and `record.json` (config, data,
+depth model, times).
 """
 
 from __future__ import annotations
@@ -309,25 +311,27 @@ def train_coverage(data: list[Path], out: Path, config: CoverageConfig,
             model.save(path)
             record["seconds"][f"fold_{k}"] = round(time.time() - tic, 1)
         folds.append(fold_predictions(model, [samples[i] for i in held], progress))
+    table = identity_table()
     if folds:
-        cv = calibrated_cv(folds)
         raw = Predictions()
         for fold in folds:
             raw.extend(fold.predictions)
-        metrics = {**coverage_metrics(cv), "uncalibrated": coverage_metrics(raw)}
+        cv, other = (calibrated_cv(folds), raw) if config.calibrate else (raw, calibrated_cv(folds))
+        other_name = "uncalibrated" if config.calibrate else "calibrated"
+        metrics = {**coverage_metrics(cv), other_name: coverage_metrics(other)}
         record["cv_metrics"] = metrics
         (out / "cv_metrics.json").write_text(json.dumps(metrics, indent=1) + "\n")
         scatter_plots(cv, out / "cv_scatter.png",
                       f"{config.folds}-fold cross-validation by procedure ({len(samples)} "
                       f"procedures)")
         logger.info("\n%s", format_table({f"{config.folds}-fold CV": metrics,
-                                          "uncalibrated": metrics["uncalibrated"]}))
-        table = fit_table(np.concatenate([f.window_pred for f in folds]),
-                          np.concatenate([f.window_true for f in folds]))
-    else:
+                                          other_name: metrics[other_name]}))
+        if config.calibrate:
+            table = fit_table(np.concatenate([f.window_pred for f in folds]),
+                              np.concatenate([f.window_true for f in folds]))
+    elif config.calibrate:
         logger.warning("no cross-validation (folds=%d): the segment coverage is left "
                        "uncalibrated", config.folds)
-        table = identity_table()
     final = out / "model.safetensors"
     if final.is_file():
         model = load_coverage_model(final, device=device)

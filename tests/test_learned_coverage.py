@@ -3,6 +3,7 @@ the commands, and bad input."""
 
 from __future__ import annotations
 
+import shutil
 from dataclasses import replace
 from pathlib import Path
 
@@ -516,7 +517,8 @@ def test_train_eval_and_adapt_commands(tmp_path, two_procedures):
     depth = save_model(tmp_path / "depth.safetensors", DepthModel(TINY), TINY.to_dict())
     run = tmp_path / "run"
     sets = ["segment_frames=20", "segment_stride=5", "frame_epochs=1", "segment_epochs=2",
-            "frame_batch=16", "travel_hops=2"]  # 40-frame procedures: 2 hops of 8 frames
+            "frame_batch=16", "travel_hops=2",  # 40-frame procedures: 2 hops of 8 frames
+            "calibrate=true"]
     args = ["train-coverage", "--data", str(two_procedures), "--out", str(run), "--folds", "2",
             "--depth-checkpoint", str(depth)] + [x for s in sets for x in ("--set", s)]
     result = runner.invoke(app, args)
@@ -555,6 +557,22 @@ def test_train_eval_and_adapt_commands(tmp_path, two_procedures):
     final = load_coverage_model(run / "model.safetensors").segment.calibration.numpy()
     np.testing.assert_allclose(final, table, atol=1e-12)
     assert np.abs(final - identity_table()).max() > 0.01
+    # Uncalibrated (the default), the same folds give the same figures the other way round,
+    # and the final model's table is the identity.
+    plain = tmp_path / "plain"
+    plain.mkdir()
+    for k in (0, 1):
+        shutil.copy(run / f"fold-{k}.safetensors", plain)
+    shutil.copy(run / "model.safetensors", plain)
+    result = runner.invoke(app, [str(plain) if a == str(run) else a for a in args[:-2]])
+    assert result.exit_code == 0, result.output
+    cv_plain = json.loads((plain / "cv_metrics.json").read_text())
+    assert cv_plain["segment_mae"] == cv["uncalibrated"]["segment_mae"]
+    assert cv_plain["calibrated"]["segment_mae"] == cv["segment_mae"]
+    uncalibrated = load_coverage_model(plain / "model.safetensors").segment
+    np.testing.assert_array_equal(uncalibrated.calibration.numpy(), identity_table())
+    assert not uncalibrated.holds_table()
+    assert load_coverage_model(run / "model.safetensors").segment.holds_table()
     (run / "record.json").write_text(json.dumps({**record, "procedures": ["other/proc"] * 2}))
     with pytest.raises(InputError, match="no longer those of"):
         load_run(run)
@@ -602,6 +620,12 @@ def test_train_eval_and_adapt_commands(tmp_path, two_procedures):
                                  "--segment-seconds", str(20 / 30)])
     assert result.exit_code == 0 and "calibration is not applied" not in result.output
     assert load_coverage_model(again).segment.calibrates()
+    # An uncalibrated model has no calibration to speak of.
+    result = runner.invoke(app, ["adapt", "--target", str(two_procedures), "--out",
+                                 str(tmp_path / "plain-adapted.safetensors"), "--model",
+                                 str(plain / "model.safetensors"), "--depth-checkpoint",
+                                 str(depth), "--segment-seconds", str(20 / 30)])
+    assert result.exit_code == 0 and "calibration" not in result.output, result.output
 
 
 def test_field_of_view_inputs_of_a_simulated_procedure(tmp_path, two_procedures):

@@ -637,21 +637,26 @@ def test_eval_summary_by_hand():
         return {"procedure": procedure, "segment": 0, "truth": truth, "learned": learned,
                 "geometric": geometric, "combined": combined}
 
-    # a: learned off by 0.2 and in another class than the geometric branch; b: both exact.
-    rows = [row("a", 0.5, 0.7, 0.5), row("a", 0.5, 0.3, None), row("b", 0.9, 0.9, 0.9)]
+    # a: learned 0.3 off, in another class than the truth and the geometric branch;
+    # b: three exact segments; c: no geometric coverage.
+    rows = [row("a", 0.5, 0.8, 0.5), *[row("b", 0.9, 0.9, 0.9)] * 3, row("c", 0.2, 0.2, None)]
     summary = summarise(rows)
-    assert summary["learned"]["mae"] == pytest.approx(0.4 / 3)
-    assert summary["learned"]["bias"] == pytest.approx(0.0)
-    assert summary["learned"]["3class"] == pytest.approx(2 / 3)  # 0.3 is class 0, 0.5 class 1
-    assert summary["geometric"] == {"mae": 0.0, "bias": 0.0, "3class": 1.0, "segments": 2,
+    assert summary["learned"]["mae"] == pytest.approx(0.3 / 5)
+    assert summary["learned"]["bias"] == pytest.approx(0.3 / 5)
+    assert summary["learned"]["3class"] == pytest.approx(4 / 5)
+    assert summary["geometric"] == {"mae": 0.0, "bias": 0.0, "3class": 1.0, "segments": 4,
                                     "mae_ci95": [0.0, 0.0]}
-    assert summary["combined"]["mae"] == pytest.approx((0.1 + 0.2 + 0.0) / 3)
-    assert summary["branch_agreement"] == 1.0  # the segment without geometry is skipped
-    # Resampling the two procedures gives a and a (learned MAE 0.2), a and b (0.4 / 3) or b
-    # and b (0), with chances 1/4, 1/2, 1/4: the 2.5% and 97.5% points are 0 and 0.2.
-    assert summary["learned"]["mae_ci95"] == pytest.approx([0.0, 0.2])
-    assert summary["procedures"] == 2
+    assert summary["combined"]["mae"] == pytest.approx(0.15 / 5)
+    assert summary["branch_agreement"] == pytest.approx(3 / 4)  # c is skipped
+    assert summary["procedures"] == 3
+    # Resampling three procedures: all three a (chance 1/27 > 2.5%) gives the learned MAE 0.3,
+    # none of them (8/27) gives 0. Resampling the five segments instead would put the upper
+    # end at 0.18 (three or more of five draws the one wrong segment: chance 5.8%).
+    assert summary["learned"]["mae_ci95"] == pytest.approx([0.0, 0.3])
+    # The agreement is resampled over a and b only (c has no geometric coverage): a twice
+    # (chance 1/4) gives 0, b twice (1/4) gives 1.
+    assert summary["branch_agreement_ci95"] == pytest.approx([0.0, 1.0])
 
-    one = summarise(rows[:2])
-    assert one["learned"]["mae"] == pytest.approx(0.2)
+    one = summarise(rows[:1])
+    assert one["learned"]["mae"] == pytest.approx(0.3)
     assert one["learned"]["mae_ci95"] is None and one["branch_agreement_ci95"] is None
