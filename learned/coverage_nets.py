@@ -7,8 +7,9 @@ frame for the three (Δ0, Δ1) pairs; its penultimate layer (global average of
 the last ResNet stage) is the frame's feature vector.
 Stage 2, `SegmentNet`: the T x F features of a segment -> six 1-D convolutions -> average over
 time -> an affine CORAL transform (identity until adapted) -> a fully connected layer -> one
-coverage in [0, 1]. `CoverageModel.segment_outputs` then calibrates it by the table fitted on
-the cross-validation (learned.calibration) that the segment network holds.
+coverage in [0, 1]. `CoverageModel.segment_outputs` then maps it through the calibration
+table the segment network holds (learned.calibration): fitted on the cross-validation with
+`calibrate=true`, the identity otherwise.
 
 A mirrored colon is covered alike, so `CoverageModel` predicts from the four mirror views of
 each frame (`MIRRORS`): per-frame coverage is their mean, the features keep all four
@@ -154,7 +155,7 @@ class SegmentNet(nn.Module):
         self.register_buffer("source_cov", torch.eye(cin))
         self.fc = nn.Linear(cin, 1)
         # The output's calibration (learned.calibration), applied by CoverageModel's
-        # segment_outputs; identity until train_coverage fits it on the cross-validation.
+        # segment_outputs; identity unless train_coverage fits it (calibrate=true).
         # held_out_source: 1 once set_source has put held-out windows' statistics in place of
         # the training windows' (see calibrates).
         self.register_buffer("calibration", torch.from_numpy(identity_table()))  # float64

@@ -253,12 +253,20 @@ def load_samples(data: list[Path], config: CoverageConfig, depth_checkpoint: Pat
             for p in tqdm(paths, desc="inputs and labels", disable=not progress)]
 
 
+def recorded_config(record: dict) -> CoverageConfig:
+    """The config of a run's record. Runs recorded before the `calibrate` field calibrated
+    exactly when their CV metrics hold an `uncalibrated` entry."""
+    fields = dict(record["config"])
+    fields.setdefault("calibrate", "uncalibrated" in record.get("cv_metrics", {}))
+    return CoverageConfig.from_dict(fields)
+
+
 def load_run(run: Path, progress: bool = False
              ) -> tuple[dict, CoverageConfig, list[ProcedureSamples], list[np.ndarray]]:
     """A `train_coverage` run's record, config, samples and fold split (held-out indices), its
     procedures and depth model checked against the record."""
     record = json.loads((Path(run) / "record.json").read_text())
-    config = CoverageConfig.from_dict(record["config"])
+    config = recorded_config(record)
     depth = Path(record["depth_checkpoint"]["path"])
     if file_tag(depth) != record["depth_checkpoint"]["sha256_12"]:
         raise InputError(f"{depth} is no longer the depth model {run} was trained on")
@@ -277,7 +285,7 @@ def train_coverage(data: list[Path], out: Path, config: CoverageConfig,
     out.mkdir(parents=True, exist_ok=True)
     record_path = out / "record.json"
     previous = json.loads(record_path.read_text()) if record_path.is_file() else {}
-    if previous and CoverageConfig.from_dict(previous["config"]) != config:
+    if previous and recorded_config(previous) != config:
         raise InputError(f"{out} holds a run with another config; resume it with the same "
                          f"options or use another --out")
     started = time.time()

@@ -535,6 +535,12 @@ def test_train_eval_and_adapt_commands(tmp_path, two_procedures):
     stamp = (run / "fold-0.safetensors").stat().st_mtime_ns
     assert runner.invoke(app, args).exit_code == 0
     assert (run / "fold-0.safetensors").stat().st_mtime_ns == stamp
+    # A run recorded before the `calibrate` field resumes as the calibrated run it was.
+    legacy = json.loads((run / "record.json").read_text())
+    del legacy["config"]["calibrate"]
+    (run / "record.json").write_text(json.dumps(legacy))
+    result = runner.invoke(app, args)
+    assert result.exit_code == 0, result.output
     # The benchmarks read the run back with its fold split; a changed record is refused.
     record, config, samples, folds = load_run(run)
     assert config.travel_hops == 2 and [s.name for s in samples] == record["procedures"]
@@ -552,6 +558,7 @@ def test_train_eval_and_adapt_commands(tmp_path, two_procedures):
     assert cv["segment_mae"] == pytest.approx(np.abs(calibrated - true).mean())
     assert cv["uncalibrated"]["segment_mae"] == pytest.approx(
         np.abs(np.concatenate(raw) - true).mean())
+    assert cv["segment_mae"] != cv["uncalibrated"]["segment_mae"]
     table = fit_table(np.concatenate([h.window_pred for h in held]),
                       np.concatenate([h.window_true for h in held]))
     final = load_coverage_model(run / "model.safetensors").segment.calibration.numpy()
@@ -564,7 +571,8 @@ def test_train_eval_and_adapt_commands(tmp_path, two_procedures):
     for k in (0, 1):
         shutil.copy(run / f"fold-{k}.safetensors", plain)
     shutil.copy(run / "model.safetensors", plain)
-    result = runner.invoke(app, [str(plain) if a == str(run) else a for a in args[:-2]])
+    result = runner.invoke(app, [str(plain) if a == str(run) else a
+                                 for a in args[:-2]])  # without --set calibrate=true
     assert result.exit_code == 0, result.output
     cv_plain = json.loads((plain / "cv_metrics.json").read_text())
     assert cv_plain["segment_mae"] == cv["uncalibrated"]["segment_mae"]
