@@ -1,8 +1,11 @@
 """How accurate both branches must be for their 3-class agreement to reach a bar.
 
-Reads the per-segment truth, learned and geometric coverage of a `c2d2 eval` run, shrinks each
-branch's error on every segment by the same factor (truth + factor x (branch - truth)) and
-prints both MAEs and the branches' 3-class agreement at each factor. A what-if on the run's own
+Reads the per-segment truth, learned and geometric coverage of a `c2d2 eval` run. First, what
+the disagreements are: which branch's class is wrong, how many have a value within 0.05 of a
+class edge, the correlation of the branches' errors and each branch's bias per class of
+truth. Then it shrinks each branch's error on every segment by the same factor (truth +
+factor x (branch - truth)) and prints both MAEs and the branches' 3-class agreement at each
+factor. A what-if on the run's own
 segments: it keeps where their truths lie (how close to a class edge) and how the two branches'
 errors go together, and asks only how large the errors may be.
 
@@ -17,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from learned.coverage_eval import three_class
+from learned.coverage_eval import CLASS_EDGES, three_class
 
 
 def main() -> None:
@@ -32,6 +35,21 @@ def main() -> None:
                                  for k in ("truth", "learned", "geometric"))
     print(f"{len(segments)} segments; truth per class (< 0.4, 0.4-0.8, >= 0.8): "
           f"{np.bincount(three_class(truth), minlength=3).tolist()}")
+    classes = {k: three_class(v) for k, v in
+               (("truth", truth), ("learned", learned), ("geometric", geometric))}
+    differ = classes["learned"] != classes["geometric"]
+    edge_distance = np.min([np.abs(v[:, None] - np.asarray(CLASS_EDGES)).min(1)
+                            for v in (learned, geometric)], axis=0)
+    print(f"{differ.sum()} disagreements: learned class wrong in "
+          f"{(differ & (classes['geometric'] == classes['truth'])).sum()}, geometric in "
+          f"{(differ & (classes['learned'] == classes['truth'])).sum()}; "
+          f"{(differ & (edge_distance <= 0.05)).sum()} with a value within 0.05 of a class edge")
+    print(f"correlation of the branches' errors: "
+          f"{np.corrcoef(learned - truth, geometric - truth)[0, 1]:.2f}")
+    for name, values in (("learned", learned), ("geometric", geometric)):
+        print(f"{name} bias per class of truth: " + ", ".join(
+            f"{(values - truth)[classes['truth'] == c].mean():+.3f}"
+            if (classes["truth"] == c).any() else "n/a" for c in range(3)))
     print("factor  learned MAE  geometric MAE  agreement")
     for factor in args.factors:
         a, b = truth + factor * (learned - truth), truth + factor * (geometric - truth)
