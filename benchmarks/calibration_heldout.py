@@ -1,7 +1,7 @@
 """A calibrated and an uncalibrated coverage model on held-out procedures, segment by segment.
 
 For each group of `--data` folders: the segment MAE of both models, their difference with a
-95% percentile-bootstrap interval over procedures (paired: both models resampled alike), and
+95% interval (hybrid.evaluate.procedure_interval, paired: both models resampled alike), and
 each model's bias per class of true coverage.
 
     .venv/bin/python benchmarks/calibration_heldout.py --data data/heldout \
@@ -15,12 +15,20 @@ from pathlib import Path
 
 import numpy as np
 
-from learned.coverage_eval import CLASS_EDGES
+from hybrid.evaluate import procedure_interval
+from learned.coverage_eval import three_class
 from learned.coverage_nets import load_coverage_model
 from learned.coverage_train import evaluate, load_samples
 
 SHIPPED = Path("learned/checkpoints/coverage-fast.safetensors")
 DEPTH = Path("learned/checkpoints/depth-fast.safetensors")
+
+
+def mae_difference(errors: dict[str, list[np.ndarray]], picks: np.ndarray) -> float:
+    """Calibrated minus uncalibrated segment MAE over the picked procedures' errors."""
+    calibrated, uncalibrated = (np.concatenate([errors[k][i] for i in picks]).mean()
+                                for k in ("calibrated", "uncalibrated"))
+    return float(calibrated - uncalibrated)
 
 
 def main() -> None:
@@ -41,22 +49,17 @@ def main() -> None:
             errors[name] = [np.abs(a - t) for a, t in zip(p.segment_pred, p.segment_true,
                                                          strict=True)]
             pred, true = np.concatenate(p.segment_pred), np.concatenate(p.segment_true)
-            classes = np.digitize(true, CLASS_EDGES)
+            classes = three_class(true)
             bias[name] = [float((pred - true)[classes == c].mean()) if (classes == c).any()
                           else float("nan") for c in range(3)]
-        rng = np.random.default_rng(0)
-        diffs = []
-        for _ in range(args.resamples):
-            picks = rng.integers(0, len(samples), len(samples))
-            diffs.append(np.concatenate([errors["calibrated"][i] for i in picks]).mean()
-                         - np.concatenate([errors["uncalibrated"][i] for i in picks]).mean())
         mae = {k: float(np.concatenate(v).mean()) for k, v in errors.items()}
-        difference = mae["calibrated"] - mae["uncalibrated"]
-        low, high = np.percentile(diffs, [2.5, 97.5])
+        low, high = procedure_interval(
+            len(samples), lambda picks, e=errors: mae_difference(e, picks), args.resamples)
         print(f"{' '.join(map(str, group))}: {len(samples)} procedures, "
               f"{sum(map(len, errors['calibrated']))} segments")
         print(f"  segment MAE calibrated {mae['calibrated']:.4f}, uncalibrated "
-              f"{mae['uncalibrated']:.4f}, difference {difference:+.4f} [{low:+.4f}, {high:+.4f}]")
+              f"{mae['uncalibrated']:.4f}, difference "
+              f"{mae['calibrated'] - mae['uncalibrated']:+.4f} [{low:+.4f}, {high:+.4f}]")
         for name, values in bias.items():
             print(f"  {name} bias for true coverage < 0.4, 0.4-0.8, >= 0.8: "
                   + ", ".join(f"{b:+.3f}" for b in values))

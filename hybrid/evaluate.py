@@ -56,6 +56,19 @@ def _agreement(a: np.ndarray, b: np.ndarray) -> float:
     return float(np.mean(three_class(a[ok]) == three_class(b[ok]))) if ok.any() else np.nan
 
 
+def procedure_interval(procedures: int, statistic: Callable[[np.ndarray], float],
+                       resamples: int = 2000, seed: int = 0) -> list[float] | None:
+    """95% percentile-bootstrap interval of statistic(picks), picks being procedure indices
+    drawn with replacement (segments of one procedure are not independent, so procedures are
+    resampled whole); None with fewer than two procedures."""
+    if procedures < 2:
+        return None
+    bounds = scipy.stats.bootstrap(
+        (np.arange(procedures),), statistic, vectorized=False, n_resamples=resamples,
+        method="percentile", random_state=seed).confidence_interval
+    return [float(bounds.low), float(bounds.high)]
+
+
 def summarise(rows: list[dict], resamples: int = 2000, seed: int = 0) -> dict:
     """MAE, bias and 3-class accuracy against the truth of each branch and of the report's
     combined coverage, and the 3-class agreement between the branches, over rows (one per
@@ -68,16 +81,8 @@ def summarise(rows: list[dict], resamples: int = 2000, seed: int = 0) -> dict:
 
     def interval(a: str, b: str, statistic) -> list[float] | None:
         have = [p for p in per_procedure if (np.isfinite(p[a]) & np.isfinite(p[b])).any()]
-        if len(have) < 2:
-            return None
-
-        def resampled(picks: np.ndarray) -> float:
-            return statistic(*(np.concatenate([have[i][k] for i in picks]) for k in (a, b)))
-
-        bounds = scipy.stats.bootstrap(
-            (np.arange(len(have)),), resampled, vectorized=False, n_resamples=resamples,
-            method="percentile", random_state=seed).confidence_interval
-        return [float(bounds.low), float(bounds.high)]
+        return procedure_interval(len(have), lambda picks: statistic(
+            *(np.concatenate([have[i][k] for i in picks]) for k in (a, b))), resamples, seed)
 
     values = _columns(rows)
     summary = {}
