@@ -12,6 +12,7 @@ from __future__ import annotations
 import logging
 import shutil
 import time
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -90,12 +91,8 @@ def run_sfm(images: list[np.ndarray], mask: np.ndarray | None, work_dir: Path,
         cv2.imwrite(reader.camera_mask_path, mask.astype(np.uint8) * 255)
 
     start = time.perf_counter()
-    pycolmap.extract_features(database, image_dir, camera_mode=pycolmap.CameraMode.SINGLE,
-                              reader_options=reader, device=pycolmap.Device.cpu)
-    pycolmap.match_sequential(database, verification_options=verification_options(),
-                              device=pycolmap.Device.cpu)
-    models = pycolmap.incremental_mapping(database, image_dir, model_dir,
-                                          options=mapping_options())
+    with _colmap_errors_only():
+        models = _map(database, image_dir, model_dir, reader)
     seconds = time.perf_counter() - start
     if not models:
         raise InputError(f"{name}: structure from motion reconstructed no model from "
@@ -103,6 +100,29 @@ def run_sfm(images: list[np.ndarray], mask: np.ndarray | None, work_dir: Path,
                          f"or a larger image size")
     model = max(models.values(), key=lambda m: m.num_reg_images())
     return _result(model, names, seconds, name)
+
+
+def _map(database: Path, image_dir: Path, model_dir: Path,
+         reader: pycolmap.ImageReaderOptions) -> dict[int, pycolmap.Reconstruction]:
+    """SIFT, sequential matching and incremental mapping; the models found."""
+    pycolmap.extract_features(database, image_dir, camera_mode=pycolmap.CameraMode.SINGLE,
+                              reader_options=reader, device=pycolmap.Device.cpu)
+    pycolmap.match_sequential(database, verification_options=verification_options(),
+                              device=pycolmap.Device.cpu)
+    return pycolmap.incremental_mapping(database, image_dir, model_dir,
+                                        options=mapping_options())
+
+
+@contextmanager
+def _colmap_errors_only():
+    """COLMAP logs every matched image to stderr; keep its errors only while it runs (this
+    module logs its own summary)."""
+    previous = pycolmap.logging.minloglevel
+    pycolmap.logging.minloglevel = int(pycolmap.logging.ERROR)
+    try:
+        yield
+    finally:
+        pycolmap.logging.minloglevel = previous
 
 
 def _result(model: pycolmap.Reconstruction, names: list[str], seconds: float,

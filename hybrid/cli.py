@@ -23,6 +23,11 @@ AdaptSteps = Annotated[int, typer.Option(min=0, help="First adapt the depth mode
                                          "on 2 CPU cores). Not reliable: it made the depth of "
                                          "some held-out videos much worse (docs/depth.md, "
                                          "'Adapting to the video').")]
+SelfCalibrate = Annotated[bool, typer.Option(
+    "--self-calibrate", help="Take K from structure from motion on 5 stretches of 120 "
+    "frames (fusion/self_calibration.py; about a minute on 2 CPU cores) instead of the "
+    "network's intrinsics head. Where no stretch maps (dark, textureless video) the head's K "
+    "is kept, with a warning; intrinsics.json's 'source' says which.")]
 
 app = typer.Typer(help="C2D2: detect deficient coverage in colonoscopy video.",
                   no_args_is_help=True, add_completion=False, pretty_exceptions_enable=False)
@@ -335,6 +340,7 @@ def depth(
     fps: Annotated[float | None, typer.Option(help="Frame rate, if the video's is missing or "
                                               "wrong (image folders: 30).")] = None,
     adapt_steps: AdaptSteps = 0,
+    self_calibrate: SelfCalibrate = False,
     device: Device = "auto",
 ):
     """Per-frame depth, relative poses and one intrinsics estimate for an input."""
@@ -347,11 +353,28 @@ def depth(
     checkpoint, device = checkpoint or _shipped_checkpoint(), pick_device(device)
     model = load_depth_model(checkpoint, device=device)
     seq = open_sequence(input, (model.config.height, model.config.width), _read_mask(mask), fps)
+    calibration = _self_calibration(seq) if self_calibrate else None
     if adapt_steps:
         model = adapt_depth_model(checkpoint, model.config, seq, out / "adapted", adapt_steps,
                                   True, device)
-    infer_to_folder(model, seq, out, progress=True)
+    infer_to_folder(model, seq, out, progress=True, calibration=calibration)
     typer.echo(str(out))
+
+
+def _self_calibration(seq):
+    """fusion.self_calibration on the frames as the network sees them; a warning when no
+    stretch maps (the intrinsics head's K is then kept)."""
+    from fusion.self_calibration import self_calibrate
+
+    (height, width), crop = seq.size, seq.crop
+    aspect = (height / crop.height) / (width / crop.width)
+    found = self_calibrate(seq.frame, seq.num_frames, seq.region, seq.name, aspect,
+                           progress=True)
+    if found.K is None:
+        typer.echo(f"warning: {seq.name}: self-calibration mapped no stretch of frames "
+                   f"(registered per stretch: {[round(w.registered, 2) for w in found.windows]}"
+                   f"); the intrinsics head's K is kept", err=True)
+    return found
 
 
 @app.command("eval-depth")
@@ -367,6 +390,7 @@ def eval_depth(
     adapt_dir: Annotated[Path | None, typer.Option(help="Keep the adapted models here, one "
                                                    "folder per procedure (resumable); default: "
                                                    "a temporary folder.")] = None,
+    self_calibrate: SelfCalibrate = False,
     device: Device = "auto",
 ):
     """MRE, DR-MRE, DOM, abs_rel & co., intrinsics error, ATE and RPE on simulated data."""
@@ -391,17 +415,24 @@ def eval_depth(
             read = model if not adapt_steps else adapt_depth_model(
                 checkpoint, model.config, seq, Path(adapt_dir or scratch) /
                 name.replace("/", "-"), adapt_steps, True, device)
-            results[name] = evaluate_sequence(read, seq, frames)
+            calibration = _self_calibration(seq) if self_calibrate else None
+            results[name] = evaluate_sequence(read, seq, frames,
+                                              K=None if calibration is None else calibration.K)
+            if calibration is not None:
+                results[name]["self_calibrated"] = float(calibration.K is not None)
     summary = summarise(results)
     keys = DEPTH_KEYS + ("fx_rel", "fy_rel", "cx_rel", "cy_rel", "ate", "rpe_translation",
-                         "rpe_rotation_deg")
+                         "rpe_rotation_deg") + (("fx_head_rel", "self_calibrated")
+                                                if self_calibrate else ())
     width = max(14, *map(len, names))
     typer.echo(f"{'procedure':{width}s} " + " ".join(f"{k:>9.9s}" for k in keys))
     for name, m in [*results.items(), ("MEAN", summary)]:
         typer.echo(f"{name:{width}s} " + " ".join(f"{m[k]:9.4f}" for k in keys))
     if out is not None:
         out.write_text(json.dumps({"mean": summary, "procedures": results,
-                                   "adapt_steps": adapt_steps}, indent=1) + "\n")
+                                   "adapt_steps": adapt_steps,
+                                   "intrinsics": ("self-calibration" if self_calibrate
+                                                  else "intrinsics head")}, indent=1) + "\n")
 
 
 @app.command("train-coverage")

@@ -38,8 +38,10 @@ def scored_depths(model: DepthModel, seq: FrameSequence, count: int = 24
 
 
 def evaluate_sequence(model: DepthModel, seq: FrameSequence, depth_frames: int = 24,
-                      trajectory_frames: int = 150) -> dict:
-    """Metrics of one simulated procedure (seq must carry its true camera and depth)."""
+                      trajectory_frames: int = 150, K: np.ndarray | None = None) -> dict:
+    """Metrics of one simulated procedure (seq must carry its true camera and depth). K (3, 3,
+    at the network's size) is scored in place of the intrinsics head's median over the
+    trajectory window's pairs."""
     if seq.camera is None or seq.poses is None:
         raise InputError(f"{seq.name}: no ground truth; eval-depth needs simulated procedures")
     if seq.num_frames < 3:
@@ -55,9 +57,12 @@ def evaluate_sequence(model: DepthModel, seq: FrameSequence, depth_frames: int =
         row.update(median_scaled_metrics(pred, gt, seq.region))
         per_frame.append(row)
     metrics = {k: float(np.mean([r[k] for r in per_frame])) for k in per_frame[0]}
-    K = np.median(result.K_pairs, axis=0)
+    head = np.median(result.K_pairs, axis=0)
+    K = head if K is None else K
     metrics.update(intrinsics_error(K, seq.camera.K, seq.camera.width, seq.camera.height))
     metrics["fx_pred"], metrics["fx_true"] = float(K[0, 0]), float(seq.camera.fx)
+    metrics["fx_head"] = float(head[0, 0])
+    metrics["fx_head_rel"] = abs(metrics["fx_head"] - metrics["fx_true"]) / metrics["fx_true"]
     metrics.update(trajectory_errors(result.poses, seq.poses[window.start:window.stop]))
     return metrics
 

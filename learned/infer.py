@@ -6,7 +6,8 @@
     region.png             the detected image region (white) at the network's size
     relative_poses.npy     (N-1, 4, 4) transform mapping camera t's points into camera t+1
     poses.npy              (N, 4, 4) camera-to-world poses chained from them (first = identity)
-    intrinsics.json        one K for the whole input, in the input's own pixels, with its spread
+    intrinsics.json        one K for the whole input, in the input's own pixels, with its spread:
+                           the intrinsics head's, or fusion.self_calibration's (`source`)
 Depth and translation share one unknown scale.
 """
 
@@ -15,7 +16,7 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Protocol
+from typing import TYPE_CHECKING, Protocol
 
 import cv2
 import numpy as np
@@ -26,6 +27,9 @@ from hybrid.types import Camera, InputError, chain_poses
 from learned.device import device_of
 from learned.frames import Crop, FrameSequence
 from learned.model import DepthModel, to_tensor
+
+if TYPE_CHECKING:
+    from fusion.self_calibration import SelfCalibration
 
 
 class RowSink(Protocol):
@@ -132,7 +136,8 @@ def aggregate_intrinsics(K_pairs: np.ndarray, size: tuple[int, int], crop: Crop,
     cams = [crop.camera_to_input(Camera(width, height, K[0, 0], K[1, 1], K[0, 2], K[1, 2], fps))
             for K in K_pairs]
     table = {k: np.array([getattr(c, k) for c in cams]) for k in ("fx", "fy", "cx", "cy")}
-    out = {"width": crop.input_width, "height": crop.input_height, "fps": fps}
+    out = {"width": crop.input_width, "height": crop.input_height, "fps": fps,
+           "source": "intrinsics head"}
     out.update({k: float(np.median(v)) for k, v in table.items()})
     out["spread"] = {k: {"std": float(v.std()),
                          "iqr": float(np.subtract(*np.percentile(v, [75, 25])))}
@@ -140,20 +145,47 @@ def aggregate_intrinsics(K_pairs: np.ndarray, size: tuple[int, int], crop: Crop,
     out["pairs"] = len(cams)
     out["crop"] = vars(crop)
     out["network_size"] = {"height": height, "width": width}
-    K = np.median(K_pairs, axis=0)
-    out["network"] = {"fx": float(K[0, 0]), "fy": float(K[1, 1]), "cx": float(K[0, 2]),
-                      "cy": float(K[1, 2])}
+    out["network"] = _entries(np.median(K_pairs, axis=0))
     return out
 
 
-def infer_to_folder(model: DepthModel, seq: FrameSequence, out: Path, progress: bool = False
-                    ) -> None:
+def self_calibrated_intrinsics(head: dict, K: np.ndarray | None, record: dict, crop: Crop
+                               ) -> dict:
+    """`head` (aggregate_intrinsics) with K (3, 3, at the network's size) from
+    fusion.self_calibration in its place: the head's estimate moves under 'head', the
+    stretches' record goes under 'self_calibration'. With K None (no stretch mapped) the head's
+    estimate stays in place, beside the record."""
+    if K is None:
+        return {**head, "self_calibration": record}
+    size = head["network_size"]
+    camera = crop.camera_to_input(Camera(size["width"], size["height"], K[0, 0], K[1, 1],
+                                         K[0, 2], K[1, 2], head["fps"]))
+    out = {k: head[k] for k in ("width", "height", "fps")}
+    out["source"] = "self-calibration"
+    out.update({k: float(getattr(camera, k)) for k in ("fx", "fy", "cx", "cy")})
+    out.update(crop=head["crop"], network_size=size, network=_entries(K),
+               self_calibration=record)
+    out["head"] = {k: v for k, v in head.items()
+                   if k not in ("width", "height", "fps", "source", "crop", "network_size")}
+    return out
+
+
+def _entries(K: np.ndarray) -> dict[str, float]:
+    return {"fx": float(K[0, 0]), "fy": float(K[1, 1]), "cx": float(K[0, 2]),
+            "cy": float(K[1, 2])}
+
+
+def infer_to_folder(model: DepthModel, seq: FrameSequence, out: Path, progress: bool = False,
+                    calibration: SelfCalibration | None = None) -> None:
     """Infer and write the files listed in the module docstring, the depth maps batch by
-    batch."""
+    batch; intrinsics.json gives `calibration`'s K where one is given and has one."""
     out = Path(out)
     result = infer_sequence(model, seq, progress=progress, depth_out=DepthFiles(out / "depth"))
     cv2.imwrite(str(out / "region.png"), seq.region.astype(np.uint8) * 255)
     np.save(out / "relative_poses.npy", result.relative[1])
     np.save(out / "poses.npy", result.poses)
     intrinsics = aggregate_intrinsics(result.K_pairs, seq.size, seq.crop, seq.fps)
+    if calibration is not None:
+        intrinsics = self_calibrated_intrinsics(intrinsics, calibration.K, calibration.record(),
+                                                seq.crop)
     (out / "intrinsics.json").write_text(json.dumps(intrinsics, indent=1) + "\n")

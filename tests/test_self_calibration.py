@@ -1,0 +1,143 @@
+"""The focal length from structure from motion on stretches of frames (fusion.self_calibration),
+on the rendered tube of tests/tube_scene.py, and its use by `c2d2 depth` and eval-depth."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import replace
+
+import cv2
+import numpy as np
+import pytest
+import torch
+from conftest import TINY
+from tube_scene import FOCAL, HEIGHT, MASK, WIDTH, pose_at, render, wall_texture
+from typer.testing import CliRunner
+
+from fusion.self_calibration import SelfCalibrationConfig, self_calibrate, window_starts
+from hybrid.cli import app
+from hybrid.types import InputError
+from learned.checkpoint import save_checkpoint
+from learned.evaluate import evaluate_sequence
+from learned.frames import open_sequence
+from learned.model import DepthModel
+
+pytestmark = pytest.mark.usefixtures("one_thread")
+
+GREY = np.where(MASK[..., None], 128, 0).astype(np.uint8)
+"""A frame without texture (an even grey disc): no stretch of them maps."""
+
+
+@pytest.fixture(scope="module")
+def tube_frames() -> list[np.ndarray]:
+    texture = wall_texture()
+    return [render(pose_at(i), texture) for i in range(72)]
+
+
+@pytest.mark.parametrize("count, windows, length, starts", [
+    (600, 5, 120, [0, 120, 240, 360, 480]),
+    (130, 3, 120, [0, 5, 10]),
+    (100, 5, 120, [0]),  # shorter than a stretch: the whole input once
+    (600, 1, 120, [0]),
+])
+def test_stretches_are_evenly_spaced_and_distinct(count, windows, length, starts):
+    assert window_starts(count, SelfCalibrationConfig(windows, length)) == starts
+
+
+@pytest.mark.parametrize("fields", [dict(windows=0), dict(length=1), dict(min_registered=0),
+                                    dict(min_registered=1.5)])
+def test_a_config_that_cannot_work_is_refused(fields):
+    with pytest.raises(InputError, match="self-calibration needs"):
+        SelfCalibrationConfig(**fields)
+
+
+def test_focal_length_of_stretched_pixels_and_a_blank_stretch_that_does_not_count(tube_frames):
+    """Three stretches of 24 frames; the middle one is blank. The frames are squeezed to 128
+    columns, as the network's resize squeezes a crop, so fx = 64 and fy = 80 px."""
+    columns = 128
+    squeeze = columns / WIDTH
+    frames = [cv2.resize(f, (columns, HEIGHT), interpolation=cv2.INTER_AREA)
+              for f in tube_frames[:24] + [GREY] * 24 + tube_frames[48:]]
+    region = cv2.resize(MASK.astype(np.uint8) * 255, (columns, HEIGHT)) > 127
+    found = self_calibrate(frames.__getitem__, len(frames), region, "tube", 1 / squeeze,
+                           SelfCalibrationConfig(windows=3, length=24))
+    assert [w.start for w in found.windows] == [0, 24, 48]
+    blank = found.windows[1]
+    assert (blank.registered, blank.focal) == (0.0, None)
+    assert len(found.counted) == 2 and found.record()["counted"] == 2
+    # Each mapped stretch gives f within a few percent (1-3% measured at full width).
+    assert found.K[0, 0] == pytest.approx(FOCAL * squeeze, rel=0.05)
+    assert found.K[1, 1] == pytest.approx(FOCAL, rel=0.05)
+    assert found.K[1, 1] / found.K[0, 0] == pytest.approx(1 / squeeze, rel=0.01)
+    np.testing.assert_allclose(found.K[:2, 2], [(columns - 1) / 2, (HEIGHT - 1) / 2])
+
+
+def test_no_stretch_maps_no_K():
+    found = self_calibrate(lambda i: GREY, 12, np.ones((HEIGHT, WIDTH), bool), "grey",
+                           config=SelfCalibrationConfig(windows=2, length=6))
+    assert found.K is None and found.counted == []
+    assert [w.registered for w in found.windows] == [0.0, 0.0]
+
+
+@pytest.fixture(scope="module")
+def tube_checkpoint(tmp_path_factory):
+    """A tiny untrained depth model at the tube's own size (its depth does not matter here)."""
+    config = replace(TINY, height=HEIGHT, width=WIDTH)
+    torch.manual_seed(0)
+    model = DepthModel(config)
+    path = tmp_path_factory.mktemp("ckpt") / "tube.safetensors"
+    save_checkpoint(path, {"depth": model.depth, "motion": model.motion}, config.to_dict(),
+                    step=0)
+    return path
+
+
+def write_frames(folder, frames):
+    folder.mkdir()
+    for i, frame in enumerate(frames):
+        cv2.imwrite(str(folder / f"{i:04d}.png"), cv2.cvtColor(frame, cv2.COLOR_RGB2BGR))
+    return folder
+
+
+def test_depth_command_writes_the_self_calibrated_K_beside_the_heads(tmp_path, tube_frames,
+                                                                      tube_checkpoint):
+    folder = write_frames(tmp_path / "tube", tube_frames[:48])
+    out = tmp_path / "out"
+    result = CliRunner().invoke(app, ["depth", str(folder), "--out", str(out), "--checkpoint",
+                                      str(tube_checkpoint), "--self-calibrate"])
+    assert result.exit_code == 0, result.output
+    intrinsics = json.loads((out / "intrinsics.json").read_text())
+    assert intrinsics["source"] == "self-calibration"
+    assert intrinsics["fx"] == pytest.approx(FOCAL, rel=0.05)
+    assert intrinsics["fy"] == pytest.approx(FOCAL, rel=0.05)
+    assert intrinsics["network"]["fx"] == intrinsics["fx"]  # the crop is the whole frame
+    # One stretch (48 frames < 120); the head's own estimate is kept beside it.
+    assert [w["start"] for w in intrinsics["self_calibration"]["windows"]] == [0]
+    assert set(intrinsics["head"]) == {"fx", "fy", "cx", "cy", "spread", "pairs", "network"}
+    assert intrinsics["head"]["pairs"] == 47
+    assert len(list((out / "depth").iterdir())) == 48
+
+
+def test_depth_command_without_a_mapped_stretch_keeps_the_heads_K_and_says_so(
+        tmp_path, tube_checkpoint):
+    folder = write_frames(tmp_path / "grey", [GREY] * 8)
+    out = tmp_path / "out"
+    result = CliRunner().invoke(app, ["depth", str(folder), "--out", str(out), "--checkpoint",
+                                      str(tube_checkpoint), "--self-calibrate"])
+    assert result.exit_code == 0, result.output
+    assert "mapped no stretch" in result.output and "head's K is kept" in result.output
+    intrinsics = json.loads((out / "intrinsics.json").read_text())
+    assert intrinsics["source"] == "intrinsics head" and "head" not in intrinsics
+    assert intrinsics["self_calibration"]["counted"] == 0
+    assert intrinsics["fx"] == pytest.approx(intrinsics["network"]["fx"])  # crop = frame
+
+
+def test_eval_depth_scores_the_K_it_is_given(clip):
+    """The true K scores zero error; the head's own estimate is still reported."""
+    model = DepthModel(TINY).eval()
+    seq = open_sequence(clip, (TINY.height, TINY.width))
+    metrics = evaluate_sequence(model, seq, depth_frames=2, trajectory_frames=5,
+                                K=seq.camera.K)
+    assert (metrics["fx_rel"], metrics["fy_rel"], metrics["cx_rel"]) == (0, 0, 0)
+    assert metrics["fx_pred"] == seq.camera.fx and metrics["fx_head"] != seq.camera.fx
+    assert metrics["fx_head_rel"] == pytest.approx(
+        abs(metrics["fx_head"] - seq.camera.fx) / seq.camera.fx)
