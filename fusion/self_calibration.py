@@ -75,6 +75,13 @@ class SelfCalibration:
                                      if self.counted else None)}
 
 
+def calibrate_sequence(seq, config: SelfCalibrationConfig = SelfCalibrationConfig(),
+                       progress: bool = False) -> SelfCalibration:
+    """self_calibrate on a learned.frames.FrameSequence (the frames as the network sees them)."""
+    return self_calibrate(seq.frame, seq.num_frames, seq.region, seq.name, seq.pixel_aspect,
+                          config, progress)
+
+
 def window_starts(num_frames: int, config: SelfCalibrationConfig) -> list[int]:
     """First frames of the stretches: evenly spaced, distinct, each of `length` frames (one
     stretch of the whole input when it is shorter)."""
@@ -90,8 +97,8 @@ def self_calibrate(frame: Callable[[int], np.ndarray], count: int, region: np.nd
     count.
 
     frame(i): RGB uint8 (H, W, 3) at the network's size; region: (H, W) bool image region;
-    pixel_aspect: a pixel's height over its width in the scene (fy / fx; not 1 where the
-    network's resize stretched the crop). The mapper's camera has square pixels, so each
+    pixel_aspect: fy / fx of the frames (not 1 where the network's resize stretched the two
+    axes of a crop with square pixels differently). The mapper's camera has square pixels, so each
     frame is first enlarged along one axis to square pixels (a smaller image maps fewer of
     its frames), and f is scaled back along each axis.
     """

@@ -364,12 +364,9 @@ def depth(
 def _self_calibration(seq):
     """fusion.self_calibration on the frames as the network sees them; a warning when no
     stretch maps (the intrinsics head's K is then kept)."""
-    from fusion.self_calibration import self_calibrate
+    from fusion.self_calibration import calibrate_sequence
 
-    (height, width), crop = seq.size, seq.crop
-    aspect = (height / crop.height) / (width / crop.width)
-    found = self_calibrate(seq.frame, seq.num_frames, seq.region, seq.name, aspect,
-                           progress=True)
+    found = calibrate_sequence(seq, progress=True)
     if found.K is None:
         typer.echo(f"warning: {seq.name}: self-calibration mapped no stretch of frames "
                    f"(registered per stretch: {[round(w.registered, 2) for w in found.windows]}"

@@ -118,6 +118,12 @@ class FrameSequence:
         crop = image[c.y0:c.y0 + c.height, c.x0:c.x0 + c.width]
         return cv2.resize(crop, (self.size[1], self.size[0]), interpolation=interpolation)
 
+    @property
+    def pixel_aspect(self) -> float:
+        """fy / fx of the frames for an input with square pixels: not 1 where the resize from
+        the crop to the network's size stretches the two axes differently."""
+        return (self.size[0] / self.crop.height) / (self.size[1] / self.crop.width)
+
     def frame(self, index: int) -> np.ndarray:
         """RGB uint8 (H, W, 3) at network size."""
         image = self._load(index)

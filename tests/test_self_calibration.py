@@ -100,16 +100,23 @@ def write_frames(folder, frames):
 
 def test_depth_command_writes_the_self_calibrated_K_beside_the_heads(tmp_path, tube_frames,
                                                                       tube_checkpoint):
-    folder = write_frames(tmp_path / "tube", tube_frames[:48])
+    """Square frames (the tube's middle 128 columns) that the network stretches to 160: f is
+    80 px in the input and fx = 100 px at the network's size."""
+    left = (WIDTH - HEIGHT) // 2
+    folder = write_frames(tmp_path / "tube", [f[:, left:left + HEIGHT] for f in tube_frames[:48]])
     out = tmp_path / "out"
     result = CliRunner().invoke(app, ["depth", str(folder), "--out", str(out), "--checkpoint",
                                       str(tube_checkpoint), "--self-calibrate"])
     assert result.exit_code == 0, result.output
     intrinsics = json.loads((out / "intrinsics.json").read_text())
     assert intrinsics["source"] == "self-calibration"
+    assert (intrinsics["width"], intrinsics["height"]) == (HEIGHT, HEIGHT)
     assert intrinsics["fx"] == pytest.approx(FOCAL, rel=0.05)
     assert intrinsics["fy"] == pytest.approx(FOCAL, rel=0.05)
-    assert intrinsics["network"]["fx"] == intrinsics["fx"]  # the crop is the whole frame
+    assert (intrinsics["cx"], intrinsics["cy"]) == pytest.approx(((HEIGHT - 1) / 2,) * 2, abs=0.5)
+    network = intrinsics["network"]
+    assert network["fx"] / intrinsics["fx"] == pytest.approx(WIDTH / HEIGHT)
+    assert network["fy"] == pytest.approx(intrinsics["fy"])
     # One stretch (48 frames < 120); the head's own estimate is kept beside it.
     assert [w["start"] for w in intrinsics["self_calibration"]["windows"]] == [0]
     assert set(intrinsics["head"]) == {"fx", "fy", "cx", "cy", "spread", "pairs", "network"}
