@@ -10,6 +10,7 @@ Modes (each: pose graph where learned, TSDF, lumen fit, geometric coverage):
                 the pose graph, scale from the typical-radius rule
   learned-local the same inputs, each segment reconstructed on its own window (the segment
                 and half a segment either side: hybrid.segment_geometry), as `c2d2 run` does
+  learned-local-true-K  the same with the true K in the odometry and the reconstruction
 Where the learned-local error comes from: each segment on its own window as in learned-local,
 with the metric scale taken from the truth (one factor per procedure, the median ratio of true
 to learned depth, applied to the learned depth and translations alike), and
@@ -52,7 +53,7 @@ LOCAL_SWAPS = {"local-oracle": (), "local-metric": ("depth", "K", "poses"),
                "local-depth": ("depth",), "local-K": ("K",), "local-poses": ("poses",)}
 """Diagnostic modes: which inputs are the learned ones (the rest true), scale from the truth."""
 BASIC_MODES = ("oracle", "oracle-s0.7", "oracle-s1.3", "oracle-rule", "learned", "learned-local")
-MODES = (*BASIC_MODES, *LOCAL_SWAPS)
+MODES = (*BASIC_MODES, "learned-local-true-K", *LOCAL_SWAPS)
 
 
 def lumen_errors(fitted_points: np.ndarray, fitted_radius: np.ndarray, proc: Procedure,
@@ -90,22 +91,29 @@ def depth_ratio(learned: list[np.ndarray], true: list[np.ndarray], stride: int =
 
 
 def learned_inputs(proc: Procedure, model, graph: PoseGraphConfig,
-                   odometry: OdometryConfig) -> dict:
+                   odometry: OdometryConfig, true_K_too: bool = False) -> dict:
     """The depth model's depth and K, the smoothed poses (odometry first, unless off), and the
-    seconds of the networks and of the odometry + pose graph."""
+    seconds of the networks and of the odometry + pose graph; with true_K_too also the poses
+    smoothed after an odometry with the true K ('poses_true_K')."""
     tic = time.time()
     seq = open_sequence(proc.path, (model.config.height, model.config.width))
     inferred = infer_sequence(model, seq, tuple(sorted({1, *graph.skips})))
     out = {"depth": list(inferred.depth), "K": np.median(inferred.K_pairs, axis=0),
            "network_s": time.time() - tic}
+    frames = [seq.frame(i) for i in range(seq.num_frames)] if odometry.enabled else []
+
+    def smoothed(K: np.ndarray) -> np.ndarray:
+        relative = inferred.relative
+        if odometry.enabled:
+            refined = refine_relative_poses(relative, out["depth"], frames, K, seq.region,
+                                            odometry, name=str(proc.path))
+            relative, out["odometry_kept"] = refined.relative, refined.kept
+        return smooth_trajectory(relative, graph, name=str(proc.path)).poses
+
+    if true_K_too:
+        out["poses_true_K"] = smoothed(proc.camera.K)
     tic = time.time()
-    relative = inferred.relative
-    if odometry.enabled:
-        refined = refine_relative_poses(relative, out["depth"],
-                                        [seq.frame(i) for i in range(seq.num_frames)],
-                                        out["K"], seq.region, odometry, name=str(proc.path))
-        relative, out["odometry_kept"] = refined.relative, refined.kept
-    out["poses"] = smooth_trajectory(relative, graph, name=str(proc.path)).poses
+    out["poses"] = smoothed(out["K"])
     out["graph_s"] = time.time() - tic
     return out
 
@@ -116,6 +124,8 @@ def local_row(mode: str, proc: Procedure, learned: dict, depth_true: list[np.nda
     LOCAL_SWAPS diagnostics with the metric scale from the truth."""
     if mode == "learned-local":
         depth, K, poses, scale = learned["depth"], learned["K"], learned["poses"], None
+    elif mode == "learned-local-true-K":
+        depth, K, poses, scale = learned["depth"], proc.camera.K, learned["poses_true_K"], None
     else:
         swap, to_cm = LOCAL_SWAPS[mode], learned["to_cm"]
         depth = learned["depth"] if "depth" in swap else depth_true
@@ -168,11 +178,13 @@ def run_procedure(proc: Procedure, model, graph: PoseGraphConfig, odometry: Odom
     truth = proc.coverage.segment_labels()
     depth_true = [proc.depth(i) for i in range(proc.num_frames)]
     out = {"truth": truth.tolist()}
-    whole_video = [m for m in modes if m != "learned-local" and m not in LOCAL_SWAPS]
+    whole_video = [m for m in modes
+                   if m not in ("learned-local", "learned-local-true-K", *LOCAL_SWAPS)]
     rgb = [proc.rgb(i) for i in range(proc.num_frames)] if whole_video else []
     learned = {}
     if any(m.startswith("learned") or m in LOCAL_SWAPS for m in modes):
-        learned = learned_inputs(proc, model, graph, odometry)
+        learned = learned_inputs(proc, model, graph, odometry,
+                                 true_K_too="learned-local-true-K" in modes)
         if "odometry_kept" in learned:  # pairs the odometry could not align, per gap
             out["odometry_kept"] = learned["odometry_kept"]
         if any(m in LOCAL_SWAPS for m in modes):

@@ -2,7 +2,9 @@
 
 For each source (CVC-ClinicDB frame sequences, the 6 fps real clip) it runs the depth model,
 prints the intrinsics it estimates in the source's own pixels (median over pairs, with the
-spread), and draws a figure of a few frames with their depth.
+spread), and draws a figure of a few frames with their depth. With --self-calibrate it also
+prints the focal length from structure from motion (fusion.self_calibration), as
+`c2d2 depth --self-calibrate` would write it.
 
     .venv/bin/python benchmarks/real_depth_figure.py --out docs/depth_real.png
 """
@@ -19,9 +21,14 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+from fusion.self_calibration import calibrate_sequence  # noqa: E402
 from learned.checkpoints import SHIPPED_DEPTH  # noqa: E402
 from learned.frames import open_sequence  # noqa: E402
-from learned.infer import aggregate_intrinsics, infer_sequence  # noqa: E402
+from learned.infer import (  # noqa: E402
+    aggregate_intrinsics,
+    infer_sequence,
+    self_calibrated_intrinsics,
+)
 from learned.model import load_depth_model  # noqa: E402
 
 SHARED = Path(__file__).resolve().parents[2] / "shared" / "data"
@@ -41,6 +48,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--checkpoint", type=Path, default=SHIPPED_DEPTH)
     parser.add_argument("--out", type=Path, default=Path("docs/depth_real.png"))
+    parser.add_argument("--self-calibrate", action="store_true")
     args = parser.parse_args()
     model = load_depth_model(args.checkpoint)
     size = (model.config.height, model.config.width)
@@ -56,6 +64,16 @@ def main() -> None:
             print(f"{name}: input {K['width']}x{K['height']}, fx {K['fx']:.1f} "
                   f"(std {K['spread']['fx']['std']:.1f}), fy {K['fy']:.1f}, cx {K['cx']:.1f}, "
                   f"cy {K['cy']:.1f}; pairs {K['pairs']}")
+            if args.self_calibrate:
+                found = calibrate_sequence(seq)
+                seen = [(s.start, round(s.registered, 2), s.fx and round(s.fx, 1))
+                        for s in found.stretches]
+                if found.K is None:
+                    print(f"  self-calibration: no consensus (start, fraction placed, fx at "
+                          f"the network's size: {seen})")
+                else:
+                    S = self_calibrated_intrinsics(K, found.K, found.record(), seq.crop)
+                    print(f"  self-calibration: fx {S['fx']:.1f}, fy {S['fy']:.1f} ({seen})")
             pick = seq.num_frames // 2
             rows.append((name, seq.frame(pick), np.where(seq.region, result.depth[pick], np.nan)))
     fig, axes = plt.subplots(2, len(rows), figsize=(2.6 * len(rows), 4.4), layout="constrained")

@@ -1,12 +1,14 @@
-"""The focal length from the video alone: structure from motion on short windows of frames.
+"""The focal length from the video alone: structure from motion on short stretches of frames.
 
 The depth network's intrinsics head hardly follows the camera (`docs/depth.md`). pycolmap's
 bundle adjustment recovers f within a few percent wherever it maps a stretch of consecutive
-frames, but one stretch in a few goes far off. So `windows` evenly spaced stretches of `length`
-consecutive frames are mapped, each on its own (`fusion.sfm_baseline.run_sfm`, frames as the
-network sees them, with the image region as the camera mask); a stretch counts when the mapper
-places at least `min_registered` of its frames, and K is the median focal length over the
-stretches that count, with the principal point at the image centre.
+frames well, but some stretches map with f far off. So up to `windows` evenly spaced,
+non-overlapping stretches of `length` consecutive frames are mapped, each on its own
+(`fusion.sfm_baseline.run_sfm`, frames as the network sees them, with the image region as the
+camera mask). A stretch is *mapped* when the mapper places at least `min_registered` of its
+frames. The estimate needs a consensus: at least `min_agreeing` mapped stretches whose f lies
+within `agreement` of the mapped stretches' median; K is then the median f of those, with the
+principal point at the image centre. Otherwise there is no estimate.
 """
 
 from __future__ import annotations
@@ -30,49 +32,73 @@ log = logging.getLogger(__name__)
 @dataclass(frozen=True)
 class SelfCalibrationConfig:
     windows: int = 5
-    """Stretches mapped, evenly spaced over the input."""
+    """Most stretches mapped, evenly spaced over the input without overlapping."""
     length: int = 120
     """Consecutive frames per stretch (4 s at 30 fps)."""
     min_registered: float = 0.5
-    """Fraction of a stretch's frames the mapper must place for its focal length to count."""
+    """Fraction of a stretch's frames the mapper must place for the stretch to be mapped."""
+    agreement: float = 0.15
+    """Relative distance from the mapped stretches' median f within which a stretch agrees."""
+    min_agreeing: int = 2
+    """Agreeing stretches needed for an estimate (so a video shorter than min_agreeing *
+    length frames gets none)."""
 
     def __post_init__(self):
-        if self.windows < 1 or self.length < 2 or not 0 < self.min_registered <= 1:
-            raise InputError(f"self-calibration needs windows >= 1, length >= 2 and "
-                             f"0 < min_registered <= 1, got {self}")
+        if (self.windows < 1 or self.length < 2 or not 0 < self.min_registered <= 1
+                or not self.agreement > 0 or self.min_agreeing < 1):
+            raise InputError(f"self-calibration needs windows >= 1, length >= 2, "
+                             f"0 < min_registered <= 1, agreement > 0 and min_agreeing >= 1, "
+                             f"got {self}")
 
 
 @dataclass(frozen=True)
-class WindowFocal:
+class Stretch:
     """What the mapper made of one stretch."""
 
     start: int
     frames: int
     registered: float
     """Fraction of the stretch's frames placed (0 when no model was built)."""
-    focal: float | None
-    """fx in the network's pixels, None when no model was built."""
+    fx: float | None
+    """At the network's size; None when no model was built."""
 
 
 @dataclass(frozen=True)
 class SelfCalibration:
-    K: np.ndarray | None
-    """(3, 3) at the network's size; None when no stretch counts."""
-    windows: list[WindowFocal]
+    stretches: list[Stretch]
     config: SelfCalibrationConfig
+    size: tuple[int, int]
+    """(H, W) of the frames."""
+    fy_over_fx: float
 
     @property
-    def counted(self) -> list[float]:
-        """The focal lengths that went into K."""
-        return [w.focal for w in self.windows
-                if w.focal is not None and w.registered >= self.config.min_registered]
+    def mapped(self) -> list[Stretch]:
+        return [s for s in self.stretches
+                if s.fx is not None and s.registered >= self.config.min_registered]
+
+    @property
+    def agreeing(self) -> list[Stretch]:
+        """Mapped stretches whose fx lies within `agreement` of the mapped ones' median."""
+        if not self.mapped:
+            return []
+        median = np.median([s.fx for s in self.mapped])
+        return [s for s in self.mapped if abs(s.fx / median - 1) <= self.config.agreement]
+
+    @property
+    def K(self) -> np.ndarray | None:
+        """(3, 3) at the frames' size; None without a consensus."""
+        if len(self.agreeing) < self.config.min_agreeing:
+            return None
+        fx = float(np.median([s.fx for s in self.agreeing]))
+        height, width = self.size
+        return np.array([[fx, 0, (width - 1) / 2], [0, fx * self.fy_over_fx, (height - 1) / 2],
+                         [0, 0, 1]])
 
     def record(self) -> dict:
-        """JSON-ready summary: the focal lengths per stretch and which counted."""
-        return {"config": asdict(self.config), "windows": [asdict(w) for w in self.windows],
-                "counted": len(self.counted),
-                "focal_spread_iqr": (float(np.subtract(*np.percentile(self.counted, [75, 25])))
-                                     if self.counted else None)}
+        """JSON-ready: the config, every stretch, and which were mapped and agreed."""
+        return {"config": asdict(self.config), "stretches": [asdict(s) for s in self.stretches],
+                "mapped": [s.start for s in self.mapped],
+                "agreeing": [s.start for s in self.agreeing]}
 
 
 def calibrate_sequence(seq, config: SelfCalibrationConfig = SelfCalibrationConfig(),
@@ -82,25 +108,24 @@ def calibrate_sequence(seq, config: SelfCalibrationConfig = SelfCalibrationConfi
                           config, progress)
 
 
-def window_starts(num_frames: int, config: SelfCalibrationConfig) -> list[int]:
-    """First frames of the stretches: evenly spaced, distinct, each of `length` frames (one
-    stretch of the whole input when it is shorter)."""
-    last = max(num_frames - config.length, 0)
-    return sorted({int(s) for s in np.linspace(0, last, config.windows).round()})
+def stretch_starts(count: int, config: SelfCalibrationConfig) -> list[int]:
+    """First frames of the stretches: as many as fit without overlapping (at most `windows`,
+    at least one, of the whole input when it is shorter than `length`), evenly spaced."""
+    n = min(config.windows, max(count // config.length, 1))
+    return [int(s) for s in np.linspace(0, max(count - config.length, 0), n).round()]
 
 
 def self_calibrate(frame: Callable[[int], np.ndarray], count: int, region: np.ndarray,
                    name: str, pixel_aspect: float = 1.0,
                    config: SelfCalibrationConfig = SelfCalibrationConfig(),
                    progress: bool = False) -> SelfCalibration:
-    """Map each stretch of the `count` frames and take the median focal length of those that
-    count.
+    """Map each stretch of the `count` frames.
 
     frame(i): RGB uint8 (H, W, 3) at the network's size; region: (H, W) bool image region;
     pixel_aspect: fy / fx of the frames (not 1 where the network's resize stretched the two
-    axes of a crop with square pixels differently). The mapper's camera has square pixels, so each
-    frame is first enlarged along one axis to square pixels (a smaller image maps fewer of
-    its frames), and f is scaled back along each axis.
+    axes of a crop with square pixels differently). The mapper's camera has square pixels, so
+    each frame is first enlarged along one axis to square pixels (a smaller image maps fewer
+    of its frames), and f is scaled back along each axis.
     """
     height, width = region.shape
     columns = round(width * max(pixel_aspect, 1.0))
@@ -112,23 +137,17 @@ def self_calibrate(frame: Callable[[int], np.ndarray], count: int, region: np.nd
 
     mask = square(region.astype(np.uint8) * 255) > 127
     found = []
-    for start in tqdm(window_starts(count, config), desc=f"self-calibrate {name}",
+    for start in tqdm(stretch_starts(count, config), desc=f"self-calibrate {name}",
                       disable=not progress, unit="stretch"):
         ids = range(start, min(start + config.length, count))
         with tempfile.TemporaryDirectory() as work:
             try:
                 sfm = run_sfm([square(frame(i)) for i in ids], mask, Path(work),
                               name=f"{name} frames {ids.start}-{ids.stop - 1}")
-            except InputError as err:  # no model from this stretch: it does not count
+            except InputError as err:  # no model from this stretch: it is not mapped
                 log.info("%s", err)
-                found.append(WindowFocal(start, len(ids), 0.0, None))
+                found.append(Stretch(start, len(ids), 0.0, None))
                 continue
-        found.append(WindowFocal(start, len(ids), float(sfm.registered.mean()),
-                                 float(sfm.K[0, 0])))
-    result = SelfCalibration(None, found, config)
-    if not result.counted:
-        return result
-    f = float(np.median(result.counted))
-    K = np.array([[f * width / columns, 0, (width - 1) / 2],
-                  [0, f * height / rows, (height - 1) / 2], [0, 0, 1]])
-    return SelfCalibration(K, found, config)
+        found.append(Stretch(start, len(ids), float(sfm.registered.mean()),
+                             float(sfm.K[0, 0]) * width / columns))
+    return SelfCalibration(found, config, (height, width), (height / rows) / (width / columns))

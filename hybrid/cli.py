@@ -24,10 +24,11 @@ AdaptSteps = Annotated[int, typer.Option(min=0, help="First adapt the depth mode
                                          "some held-out videos much worse (docs/depth.md, "
                                          "'Adapting to the video').")]
 SelfCalibrate = Annotated[bool, typer.Option(
-    "--self-calibrate", help="Take K from structure from motion on 5 stretches of 120 "
+    "--self-calibrate", help="Take K from structure from motion on up to 5 stretches of 120 "
     "frames (fusion/self_calibration.py; about a minute on 2 CPU cores) instead of the "
-    "network's intrinsics head. Where no stretch maps (dark, textureless video) the head's K "
-    "is kept, with a warning; intrinsics.json's 'source' says which.")]
+    "network's intrinsics head. Without 2 stretches that map and agree (dark, textureless or "
+    "short video) the head's K is kept, with a warning; intrinsics.json's 'source' says "
+    "which.")]
 
 app = typer.Typer(help="C2D2: detect deficient coverage in colonoscopy video.",
                   no_args_is_help=True, add_completion=False, pretty_exceptions_enable=False)
@@ -362,15 +363,17 @@ def depth(
 
 
 def _self_calibration(seq):
-    """fusion.self_calibration on the frames as the network sees them; a warning when no
-    stretch maps (the intrinsics head's K is then kept)."""
+    """fusion.self_calibration on the frames as the network sees them; a warning without a
+    consensus (the intrinsics head's K is then kept)."""
     from fusion.self_calibration import calibrate_sequence
 
     found = calibrate_sequence(seq, progress=True)
     if found.K is None:
-        typer.echo(f"warning: {seq.name}: self-calibration mapped no stretch of frames "
-                   f"(registered per stretch: {[round(w.registered, 2) for w in found.windows]}"
-                   f"); the intrinsics head's K is kept", err=True)
+        seen = [(s.start, round(s.registered, 2), s.fx and round(s.fx, 1))
+                for s in found.stretches]
+        typer.echo(f"warning: {seq.name}: self-calibration found no {found.config.min_agreeing}"
+                   f" mapped stretches that agree (start, fraction placed, fx: {seen}); the "
+                   f"intrinsics head's K is kept", err=True)
     return found
 
 
@@ -405,7 +408,7 @@ def eval_depth(
     size = (model.config.height, model.config.width)
     paths = expand_inputs(data)
     names = [f"{p.parent.name}/{p.name}" for p in paths]  # proc_0000 of two datasets differ
-    results = {}
+    results, stretches = {}, {}
     with tempfile.TemporaryDirectory() as scratch:
         for name, path in zip(names, paths, strict=True):
             seq = open_sequence(path, size)
@@ -417,6 +420,7 @@ def eval_depth(
                                               K=None if calibration is None else calibration.K)
             if calibration is not None:
                 results[name]["self_calibrated"] = float(calibration.K is not None)
+                stretches[name] = calibration.record()
     summary = summarise(results)
     keys = DEPTH_KEYS + ("fx_rel", "fy_rel", "cx_rel", "cy_rel", "ate", "rpe_translation",
                          "rpe_rotation_deg") + (("fx_head_rel", "self_calibrated")
@@ -429,7 +433,8 @@ def eval_depth(
         out.write_text(json.dumps({"mean": summary, "procedures": results,
                                    "adapt_steps": adapt_steps,
                                    "intrinsics": ("self-calibration" if self_calibrate
-                                                  else "intrinsics head")}, indent=1) + "\n")
+                                                  else "intrinsics head"),
+                                   "self_calibration": stretches}, indent=1) + "\n")
 
 
 @app.command("train-coverage")

@@ -14,7 +14,13 @@ from conftest import TINY
 from tube_scene import FOCAL, HEIGHT, MASK, WIDTH, pose_at, render, wall_texture
 from typer.testing import CliRunner
 
-from fusion.self_calibration import SelfCalibrationConfig, self_calibrate, window_starts
+from fusion.self_calibration import (
+    SelfCalibration,
+    SelfCalibrationConfig,
+    Stretch,
+    self_calibrate,
+    stretch_starts,
+)
 from hybrid.cli import app
 from hybrid.types import InputError
 from learned.checkpoint import save_checkpoint
@@ -31,21 +37,49 @@ GREY = np.where(MASK[..., None], 128, 0).astype(np.uint8)
 @pytest.fixture(scope="module")
 def tube_frames() -> list[np.ndarray]:
     texture = wall_texture()
-    return [render(pose_at(i), texture) for i in range(72)]
+    return [render(pose_at(i), texture) for i in range(240)]
 
 
 @pytest.mark.parametrize("count, windows, length, starts", [
     (600, 5, 120, [0, 120, 240, 360, 480]),
-    (130, 3, 120, [0, 5, 10]),
+    (6000, 5, 120, [0, 1470, 2940, 4410, 5880]),
+    (300, 5, 120, [0, 180]),  # as many as fit without overlapping
+    (130, 3, 120, [0]),
     (100, 5, 120, [0]),  # shorter than a stretch: the whole input once
     (600, 1, 120, [0]),
 ])
-def test_stretches_are_evenly_spaced_and_distinct(count, windows, length, starts):
-    assert window_starts(count, SelfCalibrationConfig(windows, length)) == starts
+def test_stretches_are_evenly_spaced_and_do_not_overlap(count, windows, length, starts):
+    assert stretch_starts(count, SelfCalibrationConfig(windows, length)) == starts
+
+
+def calibration(*stretches: tuple[float, float | None]) -> SelfCalibration:
+    """From (fraction placed, fx) per stretch, at 128x160 with fy = 1.25 fx."""
+    return SelfCalibration([Stretch(120 * i, 120, r, f) for i, (r, f) in enumerate(stretches)],
+                           SelfCalibrationConfig(), (128, 160), 1.25)
+
+
+def test_K_is_the_median_of_the_mapped_stretches_that_agree():
+    # Mapped: 60, 62, 130 (median 62); 61 placed too few frames, the fourth built no model.
+    found = calibration((1.0, 60.0), (0.9, 62.0), (0.6, 130.0), (0.0, None), (0.3, 61.0))
+    assert [s.fx for s in found.mapped] == [60.0, 62.0, 130.0]
+    assert [s.fx for s in found.agreeing] == [60.0, 62.0]
+    np.testing.assert_allclose(found.K, [[61.0, 0, 79.5], [0, 76.25, 63.5], [0, 0, 1]])
+    assert found.record()["mapped"] == [0, 120, 240]
+    assert found.record()["agreeing"] == [0, 120]
+
+
+@pytest.mark.parametrize("stretches", [
+    [(1.0, 60.0), (1.0, 130.0)],  # median 95: neither within 15% of it
+    [(1.0, 60.0), (0.2, 61.0)],  # one mapped stretch is no consensus
+    [(0.0, None), (0.0, None)],
+])
+def test_no_consensus_no_K(stretches):
+    assert calibration(*stretches).K is None
 
 
 @pytest.mark.parametrize("fields", [dict(windows=0), dict(length=1), dict(min_registered=0),
-                                    dict(min_registered=1.5)])
+                                    dict(min_registered=1.5), dict(agreement=0),
+                                    dict(min_agreeing=0)])
 def test_a_config_that_cannot_work_is_refused(fields):
     with pytest.raises(InputError, match="self-calibration needs"):
         SelfCalibrationConfig(**fields)
@@ -57,14 +91,14 @@ def test_focal_length_of_stretched_pixels_and_a_blank_stretch_that_does_not_coun
     columns = 128
     squeeze = columns / WIDTH
     frames = [cv2.resize(f, (columns, HEIGHT), interpolation=cv2.INTER_AREA)
-              for f in tube_frames[:24] + [GREY] * 24 + tube_frames[48:]]
+              for f in tube_frames[:24] + [GREY] * 24 + tube_frames[48:72]]
     region = cv2.resize(MASK.astype(np.uint8) * 255, (columns, HEIGHT)) > 127
     found = self_calibrate(frames.__getitem__, len(frames), region, "tube", 1 / squeeze,
                            SelfCalibrationConfig(windows=3, length=24))
-    assert [w.start for w in found.windows] == [0, 24, 48]
-    blank = found.windows[1]
-    assert (blank.registered, blank.focal) == (0.0, None)
-    assert len(found.counted) == 2 and found.record()["counted"] == 2
+    assert [s.start for s in found.stretches] == [0, 24, 48]
+    blank = found.stretches[1]
+    assert (blank.registered, blank.fx) == (0.0, None)
+    assert found.record()["agreeing"] == [0, 48]
     # Each mapped stretch gives f within a few percent (1-3% measured at full width).
     assert found.K[0, 0] == pytest.approx(FOCAL * squeeze, rel=0.05)
     assert found.K[1, 1] == pytest.approx(FOCAL, rel=0.05)
@@ -75,8 +109,8 @@ def test_focal_length_of_stretched_pixels_and_a_blank_stretch_that_does_not_coun
 def test_no_stretch_maps_no_K():
     found = self_calibrate(lambda i: GREY, 12, np.ones((HEIGHT, WIDTH), bool), "grey",
                            config=SelfCalibrationConfig(windows=2, length=6))
-    assert found.K is None and found.counted == []
-    assert [w.registered for w in found.windows] == [0.0, 0.0]
+    assert found.K is None and found.mapped == []
+    assert [s.registered for s in found.stretches] == [0.0, 0.0]
 
 
 @pytest.fixture(scope="module")
@@ -101,9 +135,9 @@ def write_frames(folder, frames):
 def test_depth_command_writes_the_self_calibrated_K_beside_the_heads(tmp_path, tube_frames,
                                                                       tube_checkpoint):
     """Square frames (the tube's middle 128 columns) that the network stretches to 160: f is
-    80 px in the input and fx = 100 px at the network's size."""
+    80 px in the input and fx = 100 px at the network's size. 240 frames: two stretches."""
     left = (WIDTH - HEIGHT) // 2
-    folder = write_frames(tmp_path / "tube", [f[:, left:left + HEIGHT] for f in tube_frames[:48]])
+    folder = write_frames(tmp_path / "tube", [f[:, left:left + HEIGHT] for f in tube_frames])
     out = tmp_path / "out"
     result = CliRunner().invoke(app, ["depth", str(folder), "--out", str(out), "--checkpoint",
                                       str(tube_checkpoint), "--self-calibrate"])
@@ -117,11 +151,11 @@ def test_depth_command_writes_the_self_calibrated_K_beside_the_heads(tmp_path, t
     network = intrinsics["network"]
     assert network["fx"] / intrinsics["fx"] == pytest.approx(WIDTH / HEIGHT)
     assert network["fy"] == pytest.approx(intrinsics["fy"])
-    # One stretch (48 frames < 120); the head's own estimate is kept beside it.
-    assert [w["start"] for w in intrinsics["self_calibration"]["windows"]] == [0]
+    assert intrinsics["self_calibration"]["agreeing"] == [0, 120]
+    # The head's own estimate is kept beside it.
     assert set(intrinsics["head"]) == {"fx", "fy", "cx", "cy", "spread", "pairs", "network"}
-    assert intrinsics["head"]["pairs"] == 47
-    assert len(list((out / "depth").iterdir())) == 48
+    assert intrinsics["head"]["pairs"] == 239
+    assert len(list((out / "depth").iterdir())) == 240
 
 
 def test_depth_command_without_a_mapped_stretch_keeps_the_heads_K_and_says_so(
@@ -131,10 +165,11 @@ def test_depth_command_without_a_mapped_stretch_keeps_the_heads_K_and_says_so(
     result = CliRunner().invoke(app, ["depth", str(folder), "--out", str(out), "--checkpoint",
                                       str(tube_checkpoint), "--self-calibrate"])
     assert result.exit_code == 0, result.output
-    assert "mapped no stretch" in result.output and "head's K is kept" in result.output
+    assert "found no 2 mapped stretches that agree" in result.output
+    assert "head's K is kept" in result.output
     intrinsics = json.loads((out / "intrinsics.json").read_text())
     assert intrinsics["source"] == "intrinsics head" and "head" not in intrinsics
-    assert intrinsics["self_calibration"]["counted"] == 0
+    assert intrinsics["self_calibration"]["mapped"] == []
     assert intrinsics["fx"] == pytest.approx(intrinsics["network"]["fx"])  # crop = frame
 
 
