@@ -100,21 +100,25 @@ def learned_inputs(proc: Procedure, model, graph: PoseGraphConfig,
     inferred = infer_sequence(model, seq, tuple(sorted({1, *graph.skips})))
     out = {"depth": list(inferred.depth), "K": np.median(inferred.K_pairs, axis=0),
            "network_s": time.time() - tic}
+    tic = time.time()
     frames = [seq.frame(i) for i in range(seq.num_frames)] if odometry.enabled else []
 
-    def smoothed(K: np.ndarray) -> np.ndarray:
-        relative = inferred.relative
+    def smoothed(K: np.ndarray) -> tuple[np.ndarray, dict | None]:
+        relative, kept = inferred.relative, None
         if odometry.enabled:
             refined = refine_relative_poses(relative, out["depth"], frames, K, seq.region,
                                             odometry, name=str(proc.path))
-            relative, out["odometry_kept"] = refined.relative, refined.kept
-        return smooth_trajectory(relative, graph, name=str(proc.path)).poses
+            relative, kept = refined.relative, refined.kept
+        return smooth_trajectory(relative, graph, name=str(proc.path)).poses, kept
 
-    if true_K_too:
-        out["poses_true_K"] = smoothed(proc.camera.K)
-    tic = time.time()
-    out["poses"] = smoothed(out["K"])
+    out["poses"], kept = smoothed(out["K"])
     out["graph_s"] = time.time() - tic
+    if kept is not None:
+        out["odometry_kept"] = kept
+    if true_K_too:
+        tic = time.time()
+        out["poses_true_K"], _ = smoothed(proc.camera.K)
+        out["graph_s_true_K"] = time.time() - tic
     return out
 
 
@@ -196,8 +200,9 @@ def run_procedure(proc: Procedure, model, graph: PoseGraphConfig, odometry: Odom
         else:
             row = local_row(mode, proc, learned, depth_true, config, geometric)
         # seconds: the geometry, with the odometry + pose graph where all poses are learned
-        graph_s = learned["graph_s"] if mode in ("learned", "learned-local", "local-metric") \
-            else 0.0
+        graph_s = {"learned": learned.get("graph_s"), "learned-local": learned.get("graph_s"),
+                   "local-metric": learned.get("graph_s"),
+                   "learned-local-true-K": learned.get("graph_s_true_K")}.get(mode) or 0.0
         row.update(seconds=time.time() - tic + graph_s, frames=proc.num_frames)
         out[mode] = row
         scale = f"scale {row['scale']:6.3f}  " if "scale" in row else ""

@@ -66,14 +66,11 @@ def main() -> None:
                   f"cy {K['cy']:.1f}; pairs {K['pairs']}")
             if args.self_calibrate:
                 found = calibrate_sequence(seq)
-                seen = [(s.start, round(s.registered, 2), s.fx and round(s.fx, 1))
-                        for s in found.stretches]
-                if found.K is None:
-                    print(f"  self-calibration: no consensus (start, fraction placed, fx at "
-                          f"the network's size: {seen})")
-                else:
-                    S = self_calibrated_intrinsics(K, found.K, found.record(), seq.crop)
-                    print(f"  self-calibration: fx {S['fx']:.1f}, fy {S['fy']:.1f} ({seen})")
+                if found.K is not None:
+                    S = self_calibrated_intrinsics(K, found, seq.crop)
+                    print(f"  self-calibration, input pixels: fx {S['fx']:.1f}, fy "
+                          f"{S['fy']:.1f}")
+                print(f"  self-calibration: {found.describe()}")
             pick = seq.num_frames // 2
             rows.append((name, seq.frame(pick), np.where(seq.region, result.depth[pick], np.nan)))
     fig, axes = plt.subplots(2, len(rows), figsize=(2.6 * len(rows), 4.4), layout="constrained")

@@ -6,9 +6,10 @@ frames well, but some stretches map with f far off. So up to `windows` evenly sp
 non-overlapping stretches of `length` consecutive frames are mapped, each on its own
 (`fusion.sfm_baseline.run_sfm`, frames as the network sees them, with the image region as the
 camera mask). A stretch is *mapped* when the mapper places at least `min_registered` of its
-frames. The estimate needs a consensus: at least `min_agreeing` mapped stretches whose f lies
-within `agreement` of the mapped stretches' median; K is then the median f of those, with the
-principal point at the image centre. Otherwise there is no estimate.
+frames. The estimate needs a consensus: the largest group of mapped stretches whose focal
+lengths all lie within `agreement` of each other (largest over smallest) must hold at least
+`min_agreeing` of them; K is then that group's median f, with the principal point at the image
+centre. Otherwise there is no estimate.
 """
 
 from __future__ import annotations
@@ -18,13 +19,17 @@ import tempfile
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
 from tqdm import tqdm
 
-from fusion.sfm_baseline import run_sfm
+from fusion.sfm_baseline import NoModel, run_sfm
 from hybrid.types import InputError
+
+if TYPE_CHECKING:
+    from learned.frames import FrameSequence
 
 log = logging.getLogger(__name__)
 
@@ -38,10 +43,10 @@ class SelfCalibrationConfig:
     min_registered: float = 0.5
     """Fraction of a stretch's frames the mapper must place for the stretch to be mapped."""
     agreement: float = 0.15
-    """Relative distance from the mapped stretches' median f within which a stretch agrees."""
+    """Most relative spread (largest f over smallest, minus 1) of a group that agrees."""
     min_agreeing: int = 2
     """Agreeing stretches needed for an estimate (so a video shorter than min_agreeing *
-    length frames gets none)."""
+    length frames gets none, and is not mapped at all)."""
 
     def __post_init__(self):
         if (self.windows < 1 or self.length < 2 or not 0 < self.min_registered <= 1
@@ -65,11 +70,16 @@ class Stretch:
 
 @dataclass(frozen=True)
 class SelfCalibration:
+    """The stretches of one input as mapped, and the K their consensus gives."""
+
+    frames: int
+    """Frames of the input."""
     stretches: list[Stretch]
     config: SelfCalibrationConfig
     size: tuple[int, int]
     """(H, W) of the frames."""
     fy_over_fx: float
+    """fy / fx of the frames (the mapper's fx scaled by the frames' pixel aspect)."""
 
     @property
     def mapped(self) -> list[Stretch]:
@@ -78,11 +88,16 @@ class SelfCalibration:
 
     @property
     def agreeing(self) -> list[Stretch]:
-        """Mapped stretches whose fx lies within `agreement` of the mapped ones' median."""
-        if not self.mapped:
-            return []
-        median = np.median([s.fx for s in self.mapped])
-        return [s for s in self.mapped if abs(s.fx / median - 1) <= self.config.agreement]
+        """The largest group of mapped stretches within `agreement` of each other (of equal
+        groups, the tightest)."""
+        ranked = sorted(self.mapped, key=lambda s: s.fx)
+        best: list[Stretch] = []
+        for i, low in enumerate(ranked):
+            group = [s for s in ranked[i:] if s.fx <= low.fx * (1 + self.config.agreement)]
+            if len(group) > len(best) or (len(group) == len(best) and
+                                          group[-1].fx / low.fx < best[-1].fx / best[0].fx):
+                best = group
+        return sorted(best, key=lambda s: s.start)
 
     @property
     def K(self) -> np.ndarray | None:
@@ -94,14 +109,31 @@ class SelfCalibration:
         return np.array([[fx, 0, (width - 1) / 2], [0, fx * self.fy_over_fx, (height - 1) / 2],
                          [0, 0, 1]])
 
+    def describe(self) -> str:
+        """One line: what the estimate is, or why there is none, and every stretch."""
+        seen = [(s.start, round(s.registered, 2), s.fx and round(s.fx, 1))
+                for s in self.stretches]
+        if len(self.stretches) < self.config.min_agreeing:
+            return (f"{self.frames} frames hold fewer than {self.config.min_agreeing} "
+                    f"stretches of {self.config.length}: not mapped")
+        K = self.K
+        head = ("no consensus" if K is None else
+                f"fx {K[0, 0]:.1f}, fy {K[1, 1]:.1f} at the network's size")
+        return f"{head} (per stretch: first frame, fraction placed, fx: {seen})"
+
     def record(self) -> dict:
-        """JSON-ready: the config, every stretch, and which were mapped and agreed."""
-        return {"config": asdict(self.config), "stretches": [asdict(s) for s in self.stretches],
+        """JSON-ready: the config, the frames' size and aspect, every stretch, which were
+        mapped and agreed, and the K (network size; None without a consensus)."""
+        K = self.K
+        return {"config": asdict(self.config), "frames": self.frames, "size": list(self.size),
+                "fy_over_fx": self.fy_over_fx, "stretches": [asdict(s) for s in self.stretches],
                 "mapped": [s.start for s in self.mapped],
-                "agreeing": [s.start for s in self.agreeing]}
+                "agreeing": [s.start for s in self.agreeing],
+                "K": None if K is None else K.tolist()}
 
 
-def calibrate_sequence(seq, config: SelfCalibrationConfig = SelfCalibrationConfig(),
+def calibrate_sequence(seq: FrameSequence,
+                       config: SelfCalibrationConfig = SelfCalibrationConfig(),
                        progress: bool = False) -> SelfCalibration:
     """self_calibrate on a learned.frames.FrameSequence (the frames as the network sees them)."""
     return self_calibrate(seq.frame, seq.num_frames, seq.region, seq.name, seq.pixel_aspect,
@@ -136,18 +168,22 @@ def self_calibrate(frame: Callable[[int], np.ndarray], count: int, region: np.nd
             image, (columns, rows), interpolation=cv2.INTER_LINEAR)
 
     mask = square(region.astype(np.uint8) * 255) > 127
+    starts = stretch_starts(count, config)
+    if len(starts) < config.min_agreeing:
+        starts = []  # no consensus possible: spare the mapping
     found = []
-    for start in tqdm(stretch_starts(count, config), desc=f"self-calibrate {name}",
-                      disable=not progress, unit="stretch"):
+    for start in tqdm(starts, desc=f"self-calibrate {name}", disable=not progress,
+                      unit="stretch"):
         ids = range(start, min(start + config.length, count))
         with tempfile.TemporaryDirectory() as work:
             try:
                 sfm = run_sfm([square(frame(i)) for i in ids], mask, Path(work),
                               name=f"{name} frames {ids.start}-{ids.stop - 1}")
-            except InputError as err:  # no model from this stretch: it is not mapped
+            except NoModel as err:  # this stretch is not mapped
                 log.info("%s", err)
                 found.append(Stretch(start, len(ids), 0.0, None))
                 continue
         found.append(Stretch(start, len(ids), float(sfm.registered.mean()),
                              float(sfm.K[0, 0]) * width / columns))
-    return SelfCalibration(found, config, (height, width), (height / rows) / (width / columns))
+    return SelfCalibration(count, found, config, (height, width),
+                           (height / rows) / (width / columns))

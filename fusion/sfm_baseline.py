@@ -30,6 +30,10 @@ learned branch's K. The principal point stays at the image centre (COLMAP's defa
 from one sequence is ill-posed); the focal length is refined by bundle adjustment."""
 
 
+class NoModel(InputError):
+    """The mapper built no model from the frames (too little texture or motion)."""
+
+
 @dataclass
 class SfmResult:
     """What the mapper recovered for N input frames."""
@@ -95,7 +99,7 @@ def run_sfm(images: list[np.ndarray], mask: np.ndarray | None, work_dir: Path,
         models = _map(database, image_dir, model_dir, reader)
     seconds = time.perf_counter() - start
     if not models:
-        raise InputError(f"{name}: structure from motion reconstructed no model from "
+        raise NoModel(f"{name}: structure from motion reconstructed no model from "
                          f"{len(images)} frames (too little texture or motion); try more frames "
                          f"or a larger image size")
     model = max(models.values(), key=lambda m: m.num_reg_images())

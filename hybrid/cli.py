@@ -7,12 +7,16 @@ import json
 import logging
 import tempfile
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 
 from hybrid import LOG_FORMAT
 from hybrid.types import InputError
+
+if TYPE_CHECKING:
+    from fusion.self_calibration import SelfCalibration
+    from learned.frames import FrameSequence
 
 Device = Annotated[str, typer.Option(envvar="C2D2_DEVICE",
                                     help="Device for the networks: auto (the GPU when torch "
@@ -362,18 +366,15 @@ def depth(
     typer.echo(str(out))
 
 
-def _self_calibration(seq):
+def _self_calibration(seq: FrameSequence) -> SelfCalibration:
     """fusion.self_calibration on the frames as the network sees them; a warning without a
     consensus (the intrinsics head's K is then kept)."""
     from fusion.self_calibration import calibrate_sequence
 
     found = calibrate_sequence(seq, progress=True)
     if found.K is None:
-        seen = [(s.start, round(s.registered, 2), s.fx and round(s.fx, 1))
-                for s in found.stretches]
-        typer.echo(f"warning: {seq.name}: self-calibration found no {found.config.min_agreeing}"
-                   f" mapped stretches that agree (start, fraction placed, fx: {seen}); the "
-                   f"intrinsics head's K is kept", err=True)
+        typer.echo(f"warning: {seq.name}: self-calibration gave no K, so the intrinsics head's "
+                   f"is kept: {found.describe()}", err=True)
     return found
 
 
@@ -393,7 +394,10 @@ def eval_depth(
     self_calibrate: SelfCalibrate = False,
     device: Device = "auto",
 ):
-    """MRE, DR-MRE, DOM, abs_rel & co., intrinsics error, ATE and RPE on simulated data."""
+    """MRE, DR-MRE, DOM, abs_rel & co., intrinsics error, ATE and RPE on simulated data.
+    With --self-calibrate the intrinsics error is that of the self-calibrated K where the
+    stretches agree, else of the head's (column self_calibrated: 1 or 0); fx_head_rel is the
+    head's own. Depth and trajectory metrics do not change."""
     from learned.adapt import adapt_depth_model
     from learned.device import pick_device
     from learned.evaluate import DEPTH_KEYS, evaluate_sequence, summarise
@@ -426,14 +430,18 @@ def eval_depth(
                          "rpe_rotation_deg") + (("fx_head_rel", "self_calibrated")
                                                 if self_calibrate else ())
     width = max(14, *map(len, names))
-    typer.echo(f"{'procedure':{width}s} " + " ".join(f"{k:>9.9s}" for k in keys))
+    columns = [max(9, len(k)) for k in keys]
+    typer.echo(f"{'procedure':{width}s} " + " ".join(f"{k:>{c}s}" for k, c in zip(
+        keys, columns, strict=True)))
     for name, m in [*results.items(), ("MEAN", summary)]:
-        typer.echo(f"{name:{width}s} " + " ".join(f"{m[k]:9.4f}" for k in keys))
+        typer.echo(f"{name:{width}s} " + " ".join(f"{m[k]:{c}.4f}" for k, c in zip(
+            keys, columns, strict=True)))
     if out is not None:
         out.write_text(json.dumps({"mean": summary, "procedures": results,
                                    "adapt_steps": adapt_steps,
-                                   "intrinsics": ("self-calibration" if self_calibrate
-                                                  else "intrinsics head"),
+                                   "intrinsics": ("self-calibration where its stretches "
+                                                  "agree, else the intrinsics head"
+                                                  if self_calibrate else "intrinsics head"),
                                    "self_calibration": stretches}, indent=1) + "\n")
 
 

@@ -149,12 +149,11 @@ def aggregate_intrinsics(K_pairs: np.ndarray, size: tuple[int, int], crop: Crop,
     return out
 
 
-def self_calibrated_intrinsics(head: dict, K: np.ndarray | None, record: dict, crop: Crop
-                               ) -> dict:
-    """`head` (aggregate_intrinsics) with K (3, 3, at the network's size) from
-    fusion.self_calibration in its place: the head's estimate moves under 'head', the
-    stretches' record goes under 'self_calibration'. With K None (no stretch mapped) the head's
-    estimate stays in place, beside the record."""
+def self_calibrated_intrinsics(head: dict, calibration: SelfCalibration, crop: Crop) -> dict:
+    """`head` (aggregate_intrinsics) with the self-calibrated K in its place: the head's
+    estimate moves under 'head', the stretches' record goes under 'self_calibration'. Without
+    a consensus (K None) the head's estimate stays in place, beside the record."""
+    K, record = calibration.K, calibration.record()
     if K is None:
         return {**head, "self_calibration": record}
     size = head["network_size"]
@@ -186,6 +185,5 @@ def infer_to_folder(model: DepthModel, seq: FrameSequence, out: Path, progress: 
     np.save(out / "poses.npy", result.poses)
     intrinsics = aggregate_intrinsics(result.K_pairs, seq.size, seq.crop, seq.fps)
     if calibration is not None:
-        intrinsics = self_calibrated_intrinsics(intrinsics, calibration.K, calibration.record(),
-                                                seq.crop)
+        intrinsics = self_calibrated_intrinsics(intrinsics, calibration, seq.crop)
     (out / "intrinsics.json").write_text(json.dumps(intrinsics, indent=1) + "\n")

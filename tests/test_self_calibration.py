@@ -30,7 +30,7 @@ from learned.model import DepthModel
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 
-GREY = np.where(MASK[..., None], 128, 0).astype(np.uint8)
+GREY = (MASK[..., None] * np.full(3, 128)).astype(np.uint8)
 """A frame without texture (an even grey disc): no stretch of them maps."""
 
 
@@ -54,27 +54,54 @@ def test_stretches_are_evenly_spaced_and_do_not_overlap(count, windows, length, 
 
 def calibration(*stretches: tuple[float, float | None]) -> SelfCalibration:
     """From (fraction placed, fx) per stretch, at 128x160 with fy = 1.25 fx."""
-    return SelfCalibration([Stretch(120 * i, 120, r, f) for i, (r, f) in enumerate(stretches)],
+    return SelfCalibration(600, [Stretch(120 * i, 120, r, f)
+                                 for i, (r, f) in enumerate(stretches)],
                            SelfCalibrationConfig(), (128, 160), 1.25)
 
 
-def test_K_is_the_median_of_the_mapped_stretches_that_agree():
-    # Mapped: 60, 62, 130 (median 62); 61 placed too few frames, the fourth built no model.
-    found = calibration((1.0, 60.0), (0.9, 62.0), (0.6, 130.0), (0.0, None), (0.3, 61.0))
-    assert [s.fx for s in found.mapped] == [60.0, 62.0, 130.0]
-    assert [s.fx for s in found.agreeing] == [60.0, 62.0]
-    np.testing.assert_allclose(found.K, [[61.0, 0, 79.5], [0, 76.25, 63.5], [0, 0, 1]])
-    assert found.record()["mapped"] == [0, 120, 240]
-    assert found.record()["agreeing"] == [0, 120]
+def test_K_is_the_median_of_the_largest_group_of_mapped_stretches_that_agree():
+    # Mapped: 60, 62, 130, 66; 61 placed too few frames, the fourth built no model.
+    found = calibration((1.0, 60.0), (0.9, 62.0), (0.6, 130.0), (0.0, None), (0.3, 61.0),
+                        (0.5, 66.0))
+    assert [s.fx for s in found.mapped] == [60.0, 62.0, 130.0, 66.0]
+    assert [s.fx for s in found.agreeing] == [60.0, 62.0, 66.0]
+    np.testing.assert_allclose(found.K, [[62.0, 0, 79.5], [0, 77.5, 63.5], [0, 0, 1]])
+    record = found.record()
+    assert (record["mapped"], record["agreeing"]) == ([0, 120, 240, 600], [0, 120, 600])
+    assert record["K"] == found.K.tolist()
+    assert found.describe().startswith("fx 62.0, fy 77.5")
+
+
+def test_the_group_is_found_wherever_the_median_lies():
+    """100 and 105 agree though the median of all five (200) lies far from both."""
+    found = calibration(*[(1.0, f) for f in (300.0, 100.0, 400.0, 105.0, 200.0)])
+    assert [s.fx for s in found.agreeing] == [100.0, 105.0]
+    assert found.K[0, 0] == pytest.approx(102.5)
+
+
+def test_of_equal_groups_the_tightest_agrees():
+    found = calibration(*[(1.0, f) for f in (100.0, 114.0, 200.0, 201.0)])
+    assert [s.fx for s in found.agreeing] == [200.0, 201.0]
 
 
 @pytest.mark.parametrize("stretches", [
-    [(1.0, 60.0), (1.0, 130.0)],  # median 95: neither within 15% of it
+    [(1.0, 100.0), (1.0, 116.0)],  # 16% apart: no two agree
     [(1.0, 60.0), (0.2, 61.0)],  # one mapped stretch is no consensus
     [(0.0, None), (0.0, None)],
 ])
 def test_no_consensus_no_K(stretches):
-    assert calibration(*stretches).K is None
+    found = calibration(*stretches)
+    assert found.K is None and found.record()["K"] is None
+    assert found.describe().startswith("no consensus")
+
+
+def test_a_video_too_short_for_two_stretches_is_not_mapped():
+    def never(i):
+        raise AssertionError("a frame was read")
+
+    found = self_calibrate(never, 239, np.ones((HEIGHT, WIDTH), bool), "short")
+    assert found.stretches == [] and found.K is None
+    assert found.describe() == "239 frames hold fewer than 2 stretches of 120: not mapped"
 
 
 @pytest.mark.parametrize("fields", [dict(windows=0), dict(length=1), dict(min_registered=0),
@@ -160,17 +187,38 @@ def test_depth_command_writes_the_self_calibrated_K_beside_the_heads(tmp_path, t
 
 def test_depth_command_without_a_mapped_stretch_keeps_the_heads_K_and_says_so(
         tmp_path, tube_checkpoint):
-    folder = write_frames(tmp_path / "grey", [GREY] * 8)
+    folder = write_frames(tmp_path / "grey", [GREY] * 240)
     out = tmp_path / "out"
     result = CliRunner().invoke(app, ["depth", str(folder), "--out", str(out), "--checkpoint",
                                       str(tube_checkpoint), "--self-calibrate"])
     assert result.exit_code == 0, result.output
-    assert "found no 2 mapped stretches that agree" in result.output
-    assert "head's K is kept" in result.output
+    assert "gave no K, so the intrinsics head's is kept: no consensus" in result.output
     intrinsics = json.loads((out / "intrinsics.json").read_text())
     assert intrinsics["source"] == "intrinsics head" and "head" not in intrinsics
     assert intrinsics["self_calibration"]["mapped"] == []
+    assert len(intrinsics["self_calibration"]["stretches"]) == 2
     assert intrinsics["fx"] == pytest.approx(intrinsics["network"]["fx"])  # crop = frame
+
+
+def test_eval_depth_with_self_calibration_on_a_short_procedure_scores_the_heads_K(tmp_path,
+                                                                                    clip):
+    """30 frames cannot hold two stretches: the head's K is scored, and the JSON says so."""
+    model = DepthModel(TINY)
+    checkpoint = tmp_path / "tiny.safetensors"
+    save_checkpoint(checkpoint, {"depth": model.depth, "motion": model.motion},
+                    TINY.to_dict(), step=0)
+    out = tmp_path / "eval.json"
+    result = CliRunner().invoke(app, ["eval-depth", "--data", str(clip), "--checkpoint",
+                                      str(checkpoint), "--frames", "2", "--self-calibrate",
+                                      "--out", str(out)])
+    assert result.exit_code == 0, result.output
+    assert "30 frames hold fewer than 2 stretches" in result.output
+    scored = json.loads(out.read_text())
+    (metrics,) = scored["procedures"].values()
+    assert metrics["self_calibrated"] == 0.0
+    assert metrics["fx_rel"] == pytest.approx(metrics["fx_head_rel"])
+    (record,) = scored["self_calibration"].values()
+    assert (record["frames"], record["stretches"], record["K"]) == (30, [], None)
 
 
 def test_eval_depth_scores_the_K_it_is_given(clip):
@@ -180,6 +228,6 @@ def test_eval_depth_scores_the_K_it_is_given(clip):
     metrics = evaluate_sequence(model, seq, depth_frames=2, trajectory_frames=5,
                                 K=seq.camera.K)
     assert (metrics["fx_rel"], metrics["fy_rel"], metrics["cx_rel"]) == (0, 0, 0)
-    assert metrics["fx_pred"] == seq.camera.fx and metrics["fx_head"] != seq.camera.fx
+    assert metrics["fx_pred"] == seq.camera.fx
     assert metrics["fx_head_rel"] == pytest.approx(
         abs(metrics["fx_head"] - seq.camera.fx) / seq.camera.fx)
