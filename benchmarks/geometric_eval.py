@@ -287,9 +287,10 @@ def main() -> None:
     config = ReconstructionConfig(voxel_cm=args.voxel_cm)
     odometry = OdometryConfig(enabled=not args.no_odometry,
                               iterations=tuple(args.odometry_iterations))
-    results = {f"{p.parent.name}/{p.name}": run_procedure(Procedure.open(p), model, graph,
-                                                           odometry, config, geometric, modes)
-               for p in expand_inputs(args.data)}
+    paths = {f"{p.parent.name}/{p.name}": p for p in expand_inputs(args.data)}
+    results = {name: run_procedure(Procedure.open(p), model, graph, odometry, config, geometric,
+                                   modes)
+               for name, p in paths.items()}
     table = summary(results, modes)
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "geometric_eval.json").write_text(json.dumps(
@@ -301,6 +302,18 @@ def main() -> None:
         print(f"{mode:12s} {m['mae']:6.3f} {m['bias']:7.3f} {m['3class']:8.3f} "
               f"{m['segments']:4d} {m['centreline_cm']:9.3f} {m['radius_error_cm']:8.3f} "
               f"{m['geometry_fps']:6.0f}")
+    print_by_style(results, paths, modes)
+
+
+def print_by_style(results: dict, paths: dict[str, Path], modes: tuple[str, ...]) -> None:
+    """The MAE of each mode over the procedures of each appearance style."""
+    styles = {name: json.loads((path / "meta.json").read_text())["config"]["style"]
+              for name, path in paths.items()}
+    for style in sorted(set(styles.values())):
+        part = {name: r for name, r in results.items() if styles[name] == style}
+        print(f"{style} ({len(part)} procedures): " + ", ".join(
+            f"{mode} MAE {m['mae']:.3f} ({m['segments']} segments)"
+            for mode, m in summary(part, modes).items()))
 
 
 if __name__ == "__main__":
