@@ -36,6 +36,8 @@ log = logging.getLogger(__name__)
 
 @dataclass(frozen=True)
 class SelfCalibrationConfig:
+    """How the stretches are laid out and when their focal lengths make an estimate."""
+
     windows: int = 5
     """Most stretches mapped, evenly spaced over the input without overlapping."""
     length: int = 120
@@ -49,11 +51,10 @@ class SelfCalibrationConfig:
     length frames gets none, and is not mapped at all)."""
 
     def __post_init__(self):
-        if (self.windows < 1 or self.length < 2 or not 0 < self.min_registered <= 1
-                or not self.agreement > 0 or self.min_agreeing < 1):
-            raise InputError(f"self-calibration needs windows >= 1, length >= 2, "
-                             f"0 < min_registered <= 1, agreement > 0 and min_agreeing >= 1, "
-                             f"got {self}")
+        if (not 1 <= self.min_agreeing <= self.windows or self.length < 2
+                or not 0 < self.min_registered <= 1 or not self.agreement > 0):
+            raise InputError(f"self-calibration needs 1 <= min_agreeing <= windows, length >= 2,"
+                             f" 0 < min_registered <= 1 and agreement > 0, got {self}")
 
 
 @dataclass(frozen=True)
