@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from learned.coverage_eval import CLASS_EDGES, three_class
+from learned.coverage_eval import CLASS_EDGES, bias_per_class, three_class
 
 
 def main() -> None:
@@ -48,8 +48,7 @@ def main() -> None:
           f"{np.corrcoef(learned - truth, geometric - truth)[0, 1]:.2f}")
     for name, values in (("learned", learned), ("geometric", geometric)):
         print(f"{name} bias per class of truth: " + ", ".join(
-            f"{(values - truth)[classes['truth'] == c].mean():+.3f}"
-            if (classes["truth"] == c).any() else "n/a" for c in range(3)))
+            f"{b:+.3f}" for b in bias_per_class(values, truth)))
     print("factor  learned MAE  geometric MAE  agreement")
     for factor in args.factors:
         a, b = truth + factor * (learned - truth), truth + factor * (geometric - truth)

@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from hybrid.evaluate import procedure_interval
-from learned.coverage_eval import three_class
+from learned.coverage_eval import bias_per_class
 from learned.coverage_nets import load_coverage_model
 from learned.coverage_train import evaluate, load_samples
 
@@ -48,10 +48,8 @@ def main() -> None:
             p = evaluate(model, samples)
             errors[name] = [np.abs(a - t) for a, t in zip(p.segment_pred, p.segment_true,
                                                          strict=True)]
-            pred, true = np.concatenate(p.segment_pred), np.concatenate(p.segment_true)
-            classes = three_class(true)
-            bias[name] = [float((pred - true)[classes == c].mean()) if (classes == c).any()
-                          else float("nan") for c in range(3)]
+            bias[name] = bias_per_class(np.concatenate(p.segment_pred),
+                                        np.concatenate(p.segment_true))
         mae = {k: float(np.concatenate(v).mean()) for k, v in errors.items()}
         low, high = procedure_interval(
             len(samples), lambda picks, e=errors: mae_difference(e, picks), args.resamples)

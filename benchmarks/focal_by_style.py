@@ -1,10 +1,10 @@
 """The intrinsics head's focal length by appearance style, against the training cameras.
 
-Reads an eval-depth JSON (per procedure: fx_pred, fx_true and, with --self-calibrate,
-fx_head) and the simulated procedures it scored, and prints per style: the true and the
-head's mean fx, the slope of the head's fx on the true one, and the mean fx of the training
-procedures of that style. It shows whether the head reads a camera or the style's usual
-camera.
+Reads an eval-depth JSON (per procedure: fx_true and the head's fx_head; in JSONs written
+before fx_head existed, fx_pred is the head's) and the simulated procedures it scored, and
+prints per style: the true and the head's mean fx, the slope of the head's fx on the true
+one, and the mean fx of the training procedures of that style. It shows whether the head
+reads a camera or the style's usual camera.
 
     .venv/bin/python benchmarks/focal_by_style.py --eval docs/depth_eval_heldout.json \\
         --train data/train-pink data/train-dusk
@@ -18,11 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from hybrid.dataset import list_procedures
-
-
-def style_of(path: Path) -> str:
-    return json.loads((path / "meta.json").read_text())["config"]["style"]
+from hybrid.dataset import Procedure, list_procedures
 
 
 def main() -> None:
@@ -36,13 +32,12 @@ def main() -> None:
     scored = json.loads(args.eval.read_text())["procedures"]
     rows: dict[str, list[tuple[float, float]]] = {}
     for name, m in scored.items():
-        rows.setdefault(style_of(args.data_root / name), []).append(
+        rows.setdefault(Procedure.open(args.data_root / name).style, []).append(
             (m["fx_true"], m.get("fx_head", m["fx_pred"])))
     train: dict[str, list[float]] = {}
     for folder in args.train:
         for proc in list_procedures(folder):
-            camera = json.loads((proc.path / "camera.json").read_text())
-            train.setdefault(style_of(proc.path), []).append(camera["fx"])
+            train.setdefault(proc.style, []).append(proc.camera.fx)
     print(f"{'style':6s} {'n':>3s} {'true fx':>8s} {'head fx':>8s} {'slope':>6s} "
           f"{'head error':>10s} {'training fx':>11s}")
     for style, values in sorted(rows.items()):

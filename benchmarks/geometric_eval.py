@@ -307,8 +307,7 @@ def main() -> None:
 
 def print_by_style(results: dict, paths: dict[str, Path], modes: tuple[str, ...]) -> None:
     """The MAE of each mode over the procedures of each appearance style."""
-    styles = {name: json.loads((path / "meta.json").read_text())["config"]["style"]
-              for name, path in paths.items()}
+    styles = {name: Procedure.open(path).style for name, path in paths.items()}
     for style in sorted(set(styles.values())):
         part = {name: r for name, r in results.items() if styles[name] == style}
         print(f"{style} ({len(part)} procedures): " + ", ".join(

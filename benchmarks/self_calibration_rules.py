@@ -1,10 +1,13 @@
 """The self-calibration's focal error by style, and under other consensus rules, from the
 stretches that `c2d2 eval-depth --self-calibrate --out JSON` recorded (no mapping is rerun).
 
-Per style and over all procedures: how many reached a consensus, the fx error of the
-self-calibrated K on those and of the intrinsics head on the same procedures, and the fx error
-of what a user gets (the self-calibrated K where there is one, else the head's). Each
---agreement / --min-agreeing pair is applied to the same recorded stretches.
+First, per style, the stretches as recorded: how many were mapped, how many of those lie
+more than the recorded `agreement` from the true fx (and how many of these had every frame
+placed), and how many procedures mapped any stretch (and their first one). Then, per style and
+over all procedures: how many reached a consensus, the fx error of the self-calibrated K on
+those and of the intrinsics head on the same procedures, and the fx error of what a user gets
+(the self-calibrated K where there is one, else the head's). Each --agreement /
+--min-agreeing pair is applied to the same recorded stretches.
 
     .venv/bin/python benchmarks/self_calibration_rules.py --eval EVAL.json \\
         --agreement 0.1 0.15 0.2 --min-agreeing 1 2 3
@@ -20,12 +23,29 @@ from pathlib import Path
 
 import numpy as np
 
-from fusion.self_calibration import SelfCalibration, SelfCalibrationConfig, Stretch
+from fusion.self_calibration import SelfCalibration
+from hybrid.dataset import Procedure
 
 
-def rebuilt(record: dict, config: SelfCalibrationConfig) -> SelfCalibration:
-    return SelfCalibration(record["frames"], [Stretch(**s) for s in record["stretches"]], config,
-                           tuple(record["size"]), record["fy_over_fx"])
+def percent(values: list[float]) -> str:
+    return f"{np.mean(values):.1%}" if values else "-"
+
+
+def print_stretches(found: dict[str, SelfCalibration], fx_true: dict[str, float],
+                    styles: dict[str, str]) -> None:
+    """Per style: mapped stretches, those far from the true fx, procedures that mapped any."""
+    for style in sorted(set(styles.values())):
+        names = [n for n in found if styles[n] == style]
+        mapped = [(s, fx_true[n]) for n in names for s in found[n].mapped]
+        far = [s for s, true in mapped
+               if abs(s.fx / true - 1) > found[names[0]].config.agreement]
+        any_mapped = [n for n in names if found[n].mapped]
+        first = [n for n in any_mapped if found[n].mapped[0].start == 0]
+        print(f"{style}: {len(mapped)} stretches mapped, {len(far)} of them more than "
+              f"{found[names[0]].config.agreement:.0%} off the true fx "
+              f"({sum(s.registered == 1 for s in far)} with every frame placed); "
+              f"{len(any_mapped)} of {len(names)} procedures mapped a stretch, "
+              f"{len(first)} of them their first")
 
 
 def main() -> None:
@@ -37,32 +57,30 @@ def main() -> None:
     parser.add_argument("--min-agreeing", type=int, nargs="+", default=None)
     args = parser.parse_args()
     scored = json.loads(args.eval.read_text())
-    records = scored["self_calibration"]
-    recorded = SelfCalibrationConfig(**next(iter(records.values()))["config"])
-    styles = {name: json.loads((args.data_root / name / "meta.json").read_text())
-              ["config"]["style"] for name in records}
+    found = {name: SelfCalibration.from_record(record)
+             for name, record in scored["self_calibration"].items()}
+    recorded = next(iter(found.values())).config
+    styles = {name: Procedure.open(args.data_root / name).style for name in found}
+    print_stretches(found, {n: scored["procedures"][n]["fx_true"] for n in found}, styles)
     print(f"{'agreement':>9s} {'min':>3s} {'style':6s} {'consensus':>9s} {'self-cal fx':>11s} "
           f"{'head, same':>10s} {'used fx':>8s} {'head fx':>8s}")
     for agreement, least in itertools.product(args.agreement or [recorded.agreement],
                                               args.min_agreeing or [recorded.min_agreeing]):
         config = replace(recorded, agreement=agreement, min_agreeing=least)
         rows = []
-        for name, record in records.items():
+        for name, calibration in found.items():
             m = scored["procedures"][name]
-            K = rebuilt(record, config).K
+            K = replace(calibration, config=config).K
             self_cal = None if K is None else abs(K[0, 0] / m["fx_true"] - 1)
             rows.append((styles[name], self_cal, m["fx_head_rel"]))
         for style in [*sorted(set(styles.values())), "all"]:
             picked = [r for r in rows if style in ("all", r[0])]
             agreed = [r for r in picked if r[1] is not None]
             used = [r[2] if r[1] is None else r[1] for r in picked]
-
-            def mean(values):
-                return f"{np.mean(values):.1%}" if values else "-"
-
             print(f"{agreement:9.2f} {least:3d} {style:6s} {len(agreed):4d}/{len(picked):<4d} "
-                  f"{mean([r[1] for r in agreed]):>11s} {mean([r[2] for r in agreed]):>10s} "
-                  f"{mean(used):>8s} {mean([r[2] for r in picked]):>8s}")
+                  f"{percent([r[1] for r in agreed]):>11s} "
+                  f"{percent([r[2] for r in agreed]):>10s} "
+                  f"{percent(used):>8s} {percent([r[2] for r in picked]):>8s}")
 
 
 if __name__ == "__main__":

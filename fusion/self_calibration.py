@@ -122,6 +122,15 @@ class SelfCalibration:
                 f"fx {K[0, 0]:.1f}, fy {K[1, 1]:.1f} at the network's size")
         return f"{head} (per stretch: first frame, fraction placed, fx: {seen})"
 
+    @classmethod
+    def from_record(cls, record: dict, config: SelfCalibrationConfig | None = None
+                    ) -> SelfCalibration:
+        """Back from `record()`, under its own config or another one (the stretches as
+        mapped; nothing is mapped again)."""
+        return cls(record["frames"], [Stretch(**s) for s in record["stretches"]],
+                   config or SelfCalibrationConfig(**record["config"]), tuple(record["size"]),
+                   record["fy_over_fx"])
+
     def record(self) -> dict:
         """JSON-ready: the config, the frames' size and aspect, every stretch, which were
         mapped and agreed, and the K (network size; None without a consensus)."""

@@ -99,6 +99,11 @@ class Procedure:
         return json.loads((self.path / "meta.json").read_text())
 
     @property
+    def style(self) -> str:
+        """The appearance style it was rendered in (pink, dusk, nbi)."""
+        return self.meta["config"]["style"]
+
+    @property
     def num_frames(self) -> int:
         return len(self.poses)
 

@@ -18,6 +18,15 @@ def three_class(coverage: np.ndarray) -> np.ndarray:
     return np.digitize(np.asarray(coverage), CLASS_EDGES)
 
 
+def bias_per_class(pred: np.ndarray, true: np.ndarray) -> list[float]:
+    """Mean pred - true over the values of each 3-class bin of the truth (NaN for an empty
+    bin)."""
+    pred, true = np.asarray(pred, float), np.asarray(true, float)
+    classes = three_class(true)
+    return [float((pred - true)[classes == c].mean()) if (classes == c).any() else np.nan
+            for c in range(3)]
+
+
 @dataclass
 class Predictions:
     """Pooled predictions and truth over procedures (per-frame (N, 3) per Δ pair; segments)."""

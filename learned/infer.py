@@ -133,8 +133,7 @@ def aggregate_intrinsics(K_pairs: np.ndarray, size: tuple[int, int], crop: Crop,
     """Median K over pairs in the input's pixels, with the spread (std, IQR) of each entry, and
     the median K at the network's size (H, W) under 'network'."""
     height, width = size
-    cams = [crop.camera_to_input(Camera(width, height, K[0, 0], K[1, 1], K[0, 2], K[1, 2], fps))
-            for K in K_pairs]
+    cams = [_in_input(K, size, crop, fps) for K in K_pairs]
     table = {k: np.array([getattr(c, k) for c in cams]) for k in ("fx", "fy", "cx", "cy")}
     out = {"width": crop.input_width, "height": crop.input_height, "fps": fps,
            "source": "intrinsics head"}
@@ -157,8 +156,7 @@ def self_calibrated_intrinsics(head: dict, calibration: SelfCalibration, crop: C
     if K is None:
         return {**head, "self_calibration": record}
     size = head["network_size"]
-    camera = crop.camera_to_input(Camera(size["width"], size["height"], K[0, 0], K[1, 1],
-                                         K[0, 2], K[1, 2], head["fps"]))
+    camera = _in_input(K, (size["height"], size["width"]), crop, head["fps"])
     out = {k: head[k] for k in ("width", "height", "fps")}
     out["source"] = "self-calibration"
     out.update({k: float(getattr(camera, k)) for k in ("fx", "fy", "cx", "cy")})
@@ -167,6 +165,12 @@ def self_calibrated_intrinsics(head: dict, calibration: SelfCalibration, crop: C
     out["head"] = {k: v for k, v in head.items()
                    if k not in ("width", "height", "fps", "source", "crop", "network_size")}
     return out
+
+
+def _in_input(K: np.ndarray, size: tuple[int, int], crop: Crop, fps: float) -> Camera:
+    """K (3, 3) at the network's size (H, W) as a camera in the input's pixels."""
+    height, width = size
+    return crop.camera_to_input(Camera(width, height, K[0, 0], K[1, 1], K[0, 2], K[1, 2], fps))
 
 
 def _entries(K: np.ndarray) -> dict[str, float]:

@@ -10,7 +10,7 @@ from safetensors.torch import save_file
 from hybrid.types import InputError
 from learned.calibration import apply_table, cross_fitted, fit_table, identity_table
 from learned.config import COVERAGE_PRESETS
-from learned.coverage_eval import Predictions, coverage_metrics
+from learned.coverage_eval import Predictions, bias_per_class, coverage_metrics
 from learned.coverage_nets import CoverageModel, load_coverage_model
 
 
@@ -91,3 +91,10 @@ def test_coverage_metrics_hand_case():
     # Deficient (< 0.4): 0.1 and 0.3; flagged: 0.2 and 0.3 (the segment of true 0.5).
     assert m["deficient_recall"] == pytest.approx(1 / 2)
     assert m["deficient_precision"] == pytest.approx(1 / 2)
+
+
+def test_bias_per_class_of_the_truth():
+    # Truth 0.2 (class 0) read 0.3 and 0.5; truth 0.9 (class 2) read 0.8; no class-1 truth.
+    bias = bias_per_class([0.3, 0.5, 0.8], [0.2, 0.2, 0.9])
+    assert bias[0] == pytest.approx(0.2) and np.isnan(bias[1])
+    assert bias[2] == pytest.approx(-0.1)

@@ -71,6 +71,9 @@ def test_K_is_the_median_of_the_largest_group_of_mapped_stretches_that_agree():
     assert (record["mapped"], record["agreeing"]) == ([0, 120, 240, 600], [0, 120, 600])
     assert record["K"] == found.K.tolist()
     assert found.describe().startswith("fx 62.0, fy 77.5")
+    # Read back from its record, under its own rule or a stricter one.
+    np.testing.assert_array_equal(SelfCalibration.from_record(record).K, found.K)
+    assert SelfCalibration.from_record(record, SelfCalibrationConfig(min_agreeing=4)).K is None
 
 
 def test_the_group_is_found_wherever_the_median_lies():

@@ -12,6 +12,7 @@ import pytest
 from conftest import make_cylinder
 
 from hybrid.coverage import Lumen
+from hybrid.dataset import Procedure
 from hybrid.sim.appearance import TEXELS_PER_CM, get_style
 from hybrid.sim.colon import Colon, ColonConfig, make_colon
 from hybrid.sim.render import ColonRenderer
@@ -88,6 +89,7 @@ def test_meta_records_seed_and_config(simulated, sim_config):
     assert meta["config"]["colon"]["length_cm"] == 14.0
     assert meta["config"]["trajectory"]["max_frames"] == 40
     assert meta["config"]["segment_frames"] == sim_config.segment_frames
+    assert Procedure.open(simulated).style == sim_config.style == meta["config"]["style"]
 
 
 def test_colon_lumen_length_and_folds():
