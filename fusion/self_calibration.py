@@ -4,12 +4,12 @@ The depth network's intrinsics head hardly follows the camera (`docs/depth.md`).
 bundle adjustment recovers f within a few percent wherever it maps a stretch of consecutive
 frames well, but some stretches map with f far off. So up to `windows` evenly spaced,
 non-overlapping stretches of `length` consecutive frames are mapped, each on its own
-(`fusion.sfm_baseline.run_sfm`, frames as the network sees them, with the image region as the
-camera mask). A stretch is *mapped* when the mapper places at least `min_registered` of its
-frames. The estimate needs a consensus: the largest group of mapped stretches whose focal
-lengths all lie within `agreement` of each other (largest over smallest) must hold at least
-`min_agreeing` of them; K is then that group's median f, with the principal point at the image
-centre. Otherwise there is no estimate.
+(`fusion.sfm_baseline.run_sfm`, frames as the network sees them with their lightness
+equalised by CLAHE, and the image region as the camera mask). A stretch is *mapped* when the
+mapper places at least `min_registered` of its frames. The estimate needs a consensus: the
+largest group of mapped stretches whose focal lengths all lie within `agreement` of each other
+(largest over smallest) must hold at least `min_agreeing` of them; K is then that group's
+median f, with the principal point at the image centre. Otherwise there is no estimate.
 """
 
 from __future__ import annotations
@@ -49,12 +49,20 @@ class SelfCalibrationConfig:
     min_agreeing: int = 2
     """Agreeing stretches needed for an estimate (so a video shorter than min_agreeing *
     length frames gets none, and is not mapped at all)."""
+    contrast: float = 3.0
+    """Clip limit of the contrast-limited adaptive histogram equalisation (CLAHE) of each
+    frame's lightness before SIFT, on `contrast_tiles` x `contrast_tiles` tiles; 0 maps the
+    frames as they are. Dim, blurred, noisy frames (the simulator's dusk style) give SIFT too
+    little contrast to map otherwise."""
+    contrast_tiles: int = 4
 
     def __post_init__(self):
         if (not 1 <= self.min_agreeing <= self.windows or self.length < 2
-                or not 0 < self.min_registered <= 1 or not self.agreement > 0):
+                or not 0 < self.min_registered <= 1 or not self.agreement > 0
+                or self.contrast < 0 or self.contrast_tiles < 1):
             raise InputError(f"self-calibration needs 1 <= min_agreeing <= windows, length >= 2,"
-                             f" 0 < min_registered <= 1 and agreement > 0, got {self}")
+                             f" 0 < min_registered <= 1, agreement > 0, contrast >= 0 and "
+                             f"contrast_tiles >= 1, got {self}")
 
 
 @dataclass(frozen=True)
@@ -127,9 +135,10 @@ class SelfCalibration:
                     ) -> SelfCalibration:
         """Back from `record()`, under its own config or another one (the stretches as
         mapped; nothing is mapped again)."""
-        return cls(record["frames"], [Stretch(**s) for s in record["stretches"]],
-                   config or SelfCalibrationConfig(**record["config"]), tuple(record["size"]),
-                   record["fy_over_fx"])
+        if config is None:  # records made before the contrast step mapped without it
+            config = SelfCalibrationConfig(**{"contrast": 0.0, **record["config"]})
+        return cls(record["frames"], [Stretch(**s) for s in record["stretches"]], config,
+                   tuple(record["size"]), record["fy_over_fx"])
 
     def record(self) -> dict:
         """JSON-ready: the config, the frames' size and aspect, every stretch, which were
@@ -177,6 +186,9 @@ def self_calibrate(frame: Callable[[int], np.ndarray], count: int, region: np.nd
         return image if (rows, columns) == (height, width) else cv2.resize(
             image, (columns, rows), interpolation=cv2.INTER_LINEAR)
 
+    def prepared(index: int) -> np.ndarray:
+        return square(contrast_enhanced(frame(index), config))
+
     mask = square(region.astype(np.uint8) * 255) > 127
     starts = stretch_starts(count, config)
     if len(starts) < config.min_agreeing:
@@ -187,7 +199,7 @@ def self_calibrate(frame: Callable[[int], np.ndarray], count: int, region: np.nd
         ids = range(start, min(start + config.length, count))
         with tempfile.TemporaryDirectory() as work:
             try:
-                sfm = run_sfm([square(frame(i)) for i in ids], mask, Path(work),
+                sfm = run_sfm([prepared(i) for i in ids], mask, Path(work),
                               name=f"{name} frames {ids.start}-{ids.stop - 1}")
             except NoModel as err:  # this stretch is not mapped
                 log.info("%s", err)
@@ -197,3 +209,14 @@ def self_calibrate(frame: Callable[[int], np.ndarray], count: int, region: np.nd
                              float(sfm.K[0, 0]) * width / columns))
     return SelfCalibration(count, found, config, (height, width),
                            (height / rows) / (width / columns))
+
+
+def contrast_enhanced(image: np.ndarray, config: SelfCalibrationConfig) -> np.ndarray:
+    """RGB uint8 with its lightness (CIELAB L) equalised by CLAHE (`config.contrast`; the
+    image itself when 0)."""
+    if not config.contrast:
+        return image
+    lab = cv2.cvtColor(image, cv2.COLOR_RGB2LAB)
+    tiles = (config.contrast_tiles, config.contrast_tiles)
+    lab[..., 0] = cv2.createCLAHE(config.contrast, tiles).apply(lab[..., 0])
+    return cv2.cvtColor(lab, cv2.COLOR_LAB2RGB)

@@ -108,13 +108,24 @@ def run_sfm(images: list[np.ndarray], mask: np.ndarray | None, work_dir: Path,
 
 def _map(database: Path, image_dir: Path, model_dir: Path,
          reader: pycolmap.ImageReaderOptions) -> dict[int, pycolmap.Reconstruction]:
-    """SIFT, sequential matching and incremental mapping; the models found."""
+    """SIFT, sequential matching and incremental mapping, each on one thread; the models found.
+
+    With COLMAP's threads the result is not repeatable, seeds or not: one 120-frame stretch of
+    a simulated procedure mapped fully at f = 85, 47 and 47 px in three runs; on one thread, at
+    51 px every time (`docs/depth.md`, "Self-calibration")."""
+    extraction = pycolmap.FeatureExtractionOptions()
+    extraction.num_threads = 1
+    matching = pycolmap.FeatureMatchingOptions()
+    matching.num_threads = 1
+    mapping = mapping_options()
+    mapping.num_threads = 1
     pycolmap.extract_features(database, image_dir, camera_mode=pycolmap.CameraMode.SINGLE,
-                              reader_options=reader, device=pycolmap.Device.cpu)
-    pycolmap.match_sequential(database, verification_options=verification_options(),
+                              reader_options=reader, extraction_options=extraction,
                               device=pycolmap.Device.cpu)
-    return pycolmap.incremental_mapping(database, image_dir, model_dir,
-                                        options=mapping_options())
+    pycolmap.match_sequential(database, matching_options=matching,
+                              verification_options=verification_options(),
+                              device=pycolmap.Device.cpu)
+    return pycolmap.incremental_mapping(database, image_dir, model_dir, options=mapping)
 
 
 @contextmanager
