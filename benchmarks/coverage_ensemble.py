@@ -47,8 +47,8 @@ def main() -> None:
 
     folds = [n for n in names if n != "model"]
     rows = {n: averaged([n]) for n in names}
-    rows[f"mean of {len(folds)} fold models"] = averaged(folds)
-    rows[f"mean of all {len(names)}"] = averaged(names)
+    rows[f"{len(folds)} folds, mean"] = averaged(folds)
+    rows[f"all {len(names)}, mean"] = averaged(names)
     print(format_table(rows))
 
 

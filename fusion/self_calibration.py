@@ -193,22 +193,28 @@ def self_calibrate(frame: Callable[[int], np.ndarray], count: int, region: np.nd
     starts = stretch_starts(count, config)
     if len(starts) < config.min_agreeing:
         starts = []  # no consensus possible: spare the mapping
+    spans = [range(start, min(start + config.length, count)) for start in starts]
     found = []
-    for start in tqdm(starts, desc=f"self-calibrate {name}", disable=not progress,
-                      unit="stretch"):
-        ids = range(start, min(start + config.length, count))
-        with tempfile.TemporaryDirectory() as work:
-            try:
-                sfm = run_sfm([prepared(i) for i in ids], mask, Path(work),
-                              name=f"{name} frames {ids.start}-{ids.stop - 1}")
-            except NoModel as err:  # this stretch is not mapped
-                log.info("%s", err)
-                found.append(Stretch(start, len(ids), 0.0, None))
-                continue
-        found.append(Stretch(start, len(ids), float(sfm.registered.mean()),
-                             float(sfm.K[0, 0]) * width / columns))
+    for ids in tqdm(spans, desc=f"self-calibrate {name}", disable=not progress,
+                    unit="stretch"):
+        mapped = _map_stretch([prepared(i) for i in ids], mask,
+                              f"{name} frames {ids.start}-{ids.stop - 1}")
+        found.append(Stretch(ids.start, len(ids), 0.0, None) if mapped is None else
+                     Stretch(ids.start, len(ids), mapped[0], mapped[1] * width / columns))
     return SelfCalibration(count, found, config, (height, width),
                            (height / rows) / (width / columns))
+
+
+def _map_stretch(images: list[np.ndarray], mask: np.ndarray, name: str
+                 ) -> tuple[float, float] | None:
+    """(fraction of the frames placed, f) of one stretch; None when no model was built."""
+    with tempfile.TemporaryDirectory() as work:
+        try:
+            sfm = run_sfm(images, mask, Path(work), name=name)
+        except NoModel as err:  # this stretch is not mapped
+            log.info("%s", err)
+            return None
+    return float(sfm.registered.mean()), float(sfm.K[0, 0])
 
 
 def contrast_enhanced(image: np.ndarray, config: SelfCalibrationConfig) -> np.ndarray:

@@ -29,10 +29,13 @@ AdaptSteps = Annotated[int, typer.Option(min=0, help="First adapt the depth mode
                                          "'Adapting to the video').")]
 SelfCalibrate = Annotated[bool, typer.Option(
     "--self-calibrate", help="Take K from structure from motion on up to 5 stretches of 120 "
-    "frames (fusion/self_calibration.py; up to about 70 s on 2 CPU cores) instead of the "
+    "frames (fusion/self_calibration.py; up to about 4 minutes on 2 CPU cores) instead of the "
     "network's intrinsics head. Without 2 stretches that map and agree (dark, textureless or "
     "short video) the head's K is kept, with a warning; intrinsics.json's 'source' says "
     "which.")]
+Contrast = Annotated[float | None, typer.Option(
+    min=0, help="With --self-calibrate: the clip limit of the CLAHE on each frame's lightness "
+    "before SIFT (0: the frames as they are; default: fusion.self_calibration's, 3).")]
 
 app = typer.Typer(help="C2D2: detect deficient coverage in colonoscopy video.",
                   no_args_is_help=True, add_completion=False, pretty_exceptions_enable=False)
@@ -346,6 +349,7 @@ def depth(
                                               "wrong (image folders: 30).")] = None,
     adapt_steps: AdaptSteps = 0,
     self_calibrate: SelfCalibrate = False,
+    contrast: Contrast = None,
     device: Device = "auto",
 ):
     """Per-frame depth, relative poses and one intrinsics estimate for an input."""
@@ -355,10 +359,11 @@ def depth(
     from learned.infer import infer_to_folder
     from learned.model import load_depth_model
 
+    _check_contrast(contrast, self_calibrate)
     checkpoint, device = checkpoint or _shipped_checkpoint(), pick_device(device)
     model = load_depth_model(checkpoint, device=device)
     seq = open_sequence(input, (model.config.height, model.config.width), _read_mask(mask), fps)
-    calibration = _self_calibration(seq) if self_calibrate else None
+    calibration = _self_calibration(seq, contrast) if self_calibrate else None
     if adapt_steps:
         model = adapt_depth_model(checkpoint, model.config, seq, out / "adapted", adapt_steps,
                                   True, device)
@@ -366,16 +371,24 @@ def depth(
     typer.echo(str(out))
 
 
-def _self_calibration(seq: FrameSequence) -> SelfCalibration:
-    """fusion.self_calibration on the frames as the network sees them; a warning without a
-    consensus (the intrinsics head's K is then kept)."""
-    from fusion.self_calibration import calibrate_sequence
+def _self_calibration(seq: FrameSequence, contrast: float | None) -> SelfCalibration:
+    """fusion.self_calibration on the frames as the network sees them (its default config, or
+    another `contrast`); a warning without a consensus (the intrinsics head's K is then
+    kept)."""
+    from fusion.self_calibration import SelfCalibrationConfig, calibrate_sequence
 
-    found = calibrate_sequence(seq, progress=True)
+    config = SelfCalibrationConfig(**({} if contrast is None else {"contrast": contrast}))
+    found = calibrate_sequence(seq, config, progress=True)
     if found.K is None:
         typer.echo(f"warning: {seq.name}: self-calibration gave no K, so the intrinsics head's "
                    f"is kept: {found.describe()}", err=True)
     return found
+
+
+def _check_contrast(contrast: float | None, self_calibrate: bool) -> None:
+    if contrast is not None and not self_calibrate:
+        raise InputError("--contrast sets the self-calibration's frames: give --self-calibrate "
+                         "too")
 
 
 @app.command("eval-depth")
@@ -392,6 +405,7 @@ def eval_depth(
                                                    "folder per procedure (resumable); default: "
                                                    "a temporary folder.")] = None,
     self_calibrate: SelfCalibrate = False,
+    contrast: Contrast = None,
     device: Device = "auto",
 ):
     """MRE, DR-MRE, DOM, abs_rel & co., intrinsics error, ATE and RPE on simulated data.
@@ -407,6 +421,7 @@ def eval_depth(
 
     if adapt_dir is not None and not adapt_steps:
         raise InputError("--adapt-dir keeps adapted models: give --adapt-steps too")
+    _check_contrast(contrast, self_calibrate)
     checkpoint, device = checkpoint or _shipped_checkpoint(), pick_device(device)
     model = load_depth_model(checkpoint, device=device)
     size = (model.config.height, model.config.width)
@@ -419,7 +434,7 @@ def eval_depth(
             read = model if not adapt_steps else adapt_depth_model(
                 checkpoint, model.config, seq, Path(adapt_dir or scratch) /
                 name.replace("/", "-"), adapt_steps, True, device)
-            calibration = _self_calibration(seq) if self_calibrate else None
+            calibration = _self_calibration(seq, contrast) if self_calibrate else None
             results[name] = evaluate_sequence(read, seq, frames,
                                               K=None if calibration is None else calibration.K)
             if calibration is not None:

@@ -220,6 +220,7 @@ def test_depth_command_writes_the_self_calibrated_K_beside_the_heads(tmp_path, t
     assert network["fx"] / intrinsics["fx"] == pytest.approx(WIDTH / HEIGHT)
     assert network["fy"] == pytest.approx(intrinsics["fy"])
     assert intrinsics["self_calibration"]["agreeing"] == [0, 120]
+    assert intrinsics["self_calibration"]["config"]["contrast"] == SelfCalibrationConfig().contrast
     # The head's own estimate is kept beside it.
     assert set(intrinsics["head"]) == {"fx", "fy", "cx", "cy", "spread", "pairs", "network"}
     assert intrinsics["head"]["pairs"] == 239
@@ -231,10 +232,12 @@ def test_depth_command_without_a_mapped_stretch_keeps_the_heads_K_and_says_so(
     folder = write_frames(tmp_path / "grey", [GREY] * 240)
     out = tmp_path / "out"
     result = CliRunner().invoke(app, ["depth", str(folder), "--out", str(out), "--checkpoint",
-                                      str(tube_checkpoint), "--self-calibrate"])
+                                      str(tube_checkpoint), "--self-calibrate",
+                                      "--contrast", "0"])
     assert result.exit_code == 0, result.output
     assert "gave no K, so the intrinsics head's is kept: no consensus" in result.output
     intrinsics = json.loads((out / "intrinsics.json").read_text())
+    assert intrinsics["self_calibration"]["config"]["contrast"] == 0
     assert intrinsics["source"] == "intrinsics head" and "head" not in intrinsics
     assert intrinsics["self_calibration"]["mapped"] == []
     assert len(intrinsics["self_calibration"]["stretches"]) == 2
@@ -260,6 +263,16 @@ def test_eval_depth_with_self_calibration_on_a_short_procedure_scores_the_heads_
     assert metrics["fx_rel"] == pytest.approx(metrics["fx_head_rel"])
     (record,) = scored["self_calibration"].values()
     assert (record["frames"], record["stretches"], record["K"]) == (30, [], None)
+
+
+@pytest.mark.parametrize("command", [["depth", "IN", "--out", "OUT"],
+                                     ["eval-depth", "--data", "IN"]])
+def test_contrast_without_self_calibration_is_refused(tmp_path, clip, command):
+    args = [{"IN": str(clip), "OUT": str(tmp_path / "out")}.get(a, a) for a in command]
+    result = CliRunner().invoke(app, [*args, "--contrast", "2"])
+    assert result.exit_code != 0
+    assert "--contrast sets the self-calibration's frames: give --self-calibrate" in result.output
+    assert not (tmp_path / "out").exists()
 
 
 def test_eval_depth_scores_the_K_it_is_given(clip):
