@@ -29,7 +29,7 @@ AdaptSteps = Annotated[int, typer.Option(min=0, help="First adapt the depth mode
                                          "'Adapting to the video').")]
 SelfCalibrate = Annotated[bool, typer.Option(
     "--self-calibrate", help="Take K from structure from motion on up to 5 stretches of 120 "
-    "frames (fusion/self_calibration.py; up to about 4 minutes on 2 CPU cores) instead of the "
+    "frames (fusion/self_calibration.py; 1-7 minutes a video on 2 CPU cores) instead of the "
     "network's intrinsics head. Without 2 stretches that map and agree (dark, textureless or "
     "short video) the head's K is kept, with a warning; intrinsics.json's 'source' says "
     "which.")]
