@@ -31,7 +31,11 @@ def main() -> None:
                         help="simulated procedures or folders of them (repeat)")
     parser.add_argument("--depth-checkpoint", type=Path, default=SHIPPED_DEPTH)
     args = parser.parse_args()
-    names = sorted(p.stem for p in args.run.glob("fold-*.safetensors")) + ["model"]
+    folds = sorted((p.stem for p in args.run.glob("fold-*.safetensors")),
+                   key=lambda name: int(name.split("-")[1]))
+    if not folds or not (args.run / "model.safetensors").is_file():
+        parser.error(f"{args.run} holds no fold models or no final model.safetensors")
+    names = [*folds, "model"]
     models = {n: load_coverage_model(args.run / f"{n}.safetensors") for n in names}
     samples = load_samples(args.data, models["model"].config, args.depth_checkpoint,
                            progress=True)
@@ -45,7 +49,6 @@ def main() -> None:
             predictions.add(frame, s.frame_labels, segment, s.segment_labels)
         return coverage_metrics(predictions)
 
-    folds = [n for n in names if n != "model"]
     rows = {n: averaged([n]) for n in names}
     rows[f"{len(folds)} folds, mean"] = averaged(folds)
     rows[f"all {len(names)}, mean"] = averaged(names)

@@ -59,7 +59,7 @@ class SelfCalibrationConfig:
     def __post_init__(self):
         if (not 1 <= self.min_agreeing <= self.windows or self.length < 2
                 or not 0 < self.min_registered <= 1 or not self.agreement > 0
-                or self.contrast < 0 or self.contrast_tiles < 1):
+                or not self.contrast >= 0 or self.contrast_tiles < 1):
             raise InputError(f"self-calibration needs 1 <= min_agreeing <= windows, length >= 2,"
                              f" 0 < min_registered <= 1, agreement > 0, contrast >= 0 and "
                              f"contrast_tiles >= 1, got {self}")

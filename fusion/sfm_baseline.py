@@ -112,8 +112,8 @@ def _map(database: Path, image_dir: Path, model_dir: Path,
 
     With COLMAP's threads the result is not repeatable, seeds or not: one 120-frame stretch of
     a simulated procedure mapped fully at f = 85, 47 and 47 px in three runs; on one thread, at
-    51 px every time (`docs/depth.md`, "Self-calibration"). Two such runs at once in threads of
-    one process are not repeatable either."""
+    51 px every time (`docs/depth.md`, "The contrast step, and one thread"). Two such runs at
+    once in threads of one process are not repeatable either."""
     extraction = pycolmap.FeatureExtractionOptions()
     extraction.num_threads = 1
     matching = pycolmap.FeatureMatchingOptions()

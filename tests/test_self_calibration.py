@@ -147,7 +147,7 @@ def dimmed(frame: np.ndarray, gain: float, rng: np.random.Generator) -> np.ndarr
 
 def test_the_contrast_step_maps_a_dim_low_contrast_video(tube_frames):
     """At a quarter of its contrast the tube maps only with the contrast step (measured: no
-    model without it; f = 79 and 78 px with it)."""
+    model without it; f of about 79 px, true 80, with it)."""
     rng = np.random.default_rng(0)
     frames = [dimmed(f, 0.25, rng) for f in tube_frames[:48]]
     found = {contrast: self_calibrate(frames.__getitem__, len(frames), MASK, "dim tube",
