@@ -8,29 +8,72 @@ coverages (each model on its own per-frame features). Where the ensemble gains l
 frame, the per-frame error is not the spread between models (variance) but error they share.
 The models as saved (the fold models uncalibrated; the final model as shipped).
 
+With --segment-seeds N --fold K instead: fold K's per-frame network kept, N - 1 more segment
+networks trained on its features of the fold's training procedures (seeds 1 .. N - 1), and
+the segment MAE on the fold's held-out procedures of each (seed 0: the fold model's own) and
+of their mean: how much the segment network's seed alone moves a fold's error.
+
     python benchmarks/coverage_ensemble.py --run data/runs/coverage-hops --data data/heldout
+    python benchmarks/coverage_ensemble.py --run data/runs/coverage-hops --segment-seeds 4 --fold 0
 """
 
 from __future__ import annotations
 
 import argparse
+import copy
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
+import torch
 
 from learned.checkpoints import SHIPPED_DEPTH
 from learned.coverage_eval import Predictions, coverage_metrics, format_table
-from learned.coverage_nets import load_coverage_model
-from learned.coverage_train import load_samples, predict
+from learned.coverage_nets import SegmentNet, load_coverage_model
+from learned.coverage_train import load_run, load_samples, predict, train_segment_net
+
+
+def segment_seeds(run: Path, fold: int, seeds: int) -> None:
+    """Fold `fold`'s segment MAE under `seeds` segment networks on its per-frame features."""
+    _, config, samples, folds = load_run(run, progress=True)
+    held = set(folds[fold].tolist())
+    model = load_coverage_model(run / f"fold-{fold}.safetensors")
+    features = [model.frame_outputs(s.inputs, s.cues)[1] for s in samples]
+    train = [i for i in range(len(samples)) if i not in held]
+    true = np.concatenate([samples[i].segment_labels for i in sorted(held)])
+    ok = np.isfinite(true)
+    predictions = []
+    for seed in range(seeds):
+        if seed:
+            model = copy.deepcopy(model)
+            model.config = replace(config, seed=seed)
+            torch.manual_seed(seed)
+            model.segment.load_state_dict(SegmentNet(model.config).state_dict())
+            train_segment_net(model, [samples[i] for i in train], [features[i] for i in train],
+                              lambda entry: None, progress=True)
+        predictions.append(np.concatenate([model.segment_outputs(
+            features[i], samples[i].segment_starts.tolist(), calibrated=False)
+            for i in sorted(held)])[ok])
+        print(f"fold {fold}, segment seed {seed}: segment MAE "
+              f"{np.abs(predictions[-1] - true[ok]).mean():.4f}", flush=True)
+    print(f"fold {fold}, mean of {seeds} segment networks: segment MAE "
+          f"{np.abs(np.mean(predictions, axis=0) - true[ok]).mean():.4f}")
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--run", type=Path, required=True)
-    parser.add_argument("--data", type=Path, action="append", required=True,
+    parser.add_argument("--data", type=Path, action="append",
                         help="simulated procedures or folders of them (repeat)")
     parser.add_argument("--depth-checkpoint", type=Path, default=SHIPPED_DEPTH)
+    parser.add_argument("--segment-seeds", type=int, default=0,
+                        help="segment networks per fold (with --fold; instead of --data)")
+    parser.add_argument("--fold", type=int, default=0)
     args = parser.parse_args()
+    if args.segment_seeds:
+        return segment_seeds(args.run, args.fold, args.segment_seeds)
+    if not args.data:
+        parser.error("give --data, or --segment-seeds with --fold")
     folds = sorted((p.stem for p in args.run.glob("fold-*.safetensors")),
                    key=lambda name: int(name.split("-")[1]))
     if not folds or not (args.run / "model.safetensors").is_file():
