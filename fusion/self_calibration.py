@@ -10,6 +10,8 @@ mapper places at least `min_registered` of its frames. The estimate needs a cons
 largest group of mapped stretches whose focal lengths all lie within `agreement` of each other
 (largest over smallest) must hold at least `min_agreeing` of them; K is then that group's
 median f, with the principal point at the image centre. Otherwise there is no estimate.
+Each stretch also keeps figures of its map's quality and of the camera's motion, which need
+no ground truth (`Stretch`).
 """
 
 from __future__ import annotations
@@ -75,6 +77,18 @@ class Stretch:
     """Fraction of the stretch's frames placed (0 when no model was built)."""
     fx: float | None
     """At the network's size; None when no model was built."""
+    reprojection_error: float | None = None
+    """The map's quality, None when no model was built (or for records made before it was
+    kept): mean reprojection error (px of the mapped frames),"""
+    points: int | None = None
+    """3D points,"""
+    track_length: float | None = None
+    """mean frames observing a point,"""
+    turn: float | None = None
+    """and the largest angle between the viewing axis of the first placed frame and another's
+    (degrees). Without such a turn f is undetermined: scaling f and the sideways coordinates
+    of every point and camera by reciprocal factors changes no image (a roll about the viewing
+    axis does not help either)."""
 
 
 @dataclass(frozen=True)
@@ -197,24 +211,30 @@ def self_calibrate(frame: Callable[[int], np.ndarray], count: int, region: np.nd
     found = []
     for ids in tqdm(spans, desc=f"self-calibrate {name}", disable=not progress,
                     unit="stretch"):
-        mapped = _map_stretch([prepared(i) for i in ids], mask,
-                              f"{name} frames {ids.start}-{ids.stop - 1}")
-        found.append(Stretch(ids.start, len(ids), 0.0, None) if mapped is None else
-                     Stretch(ids.start, len(ids), mapped[0], mapped[1] * width / columns))
+        found.append(_map_stretch(ids, [prepared(i) for i in ids], mask,
+                                  f"{name} frames {ids.start}-{ids.stop - 1}", width / columns))
     return SelfCalibration(count, found, config, (height, width),
                            (height / rows) / (width / columns))
 
 
-def _map_stretch(images: list[np.ndarray], mask: np.ndarray, name: str
-                 ) -> tuple[float, float] | None:
-    """(fraction of the frames placed, f) of one stretch; None when no model was built."""
+def _map_stretch(ids: range, images: list[np.ndarray], mask: np.ndarray, name: str,
+                 scale: float) -> Stretch:
+    """One stretch as mapped; `scale` takes the mapper's f to the network's size."""
     with tempfile.TemporaryDirectory() as work:
         try:
             sfm = run_sfm(images, mask, Path(work), name=name)
         except NoModel as err:  # this stretch is not mapped
             log.info("%s", err)
-            return None
-    return float(sfm.registered.mean()), float(sfm.K[0, 0])
+            return Stretch(ids.start, len(ids), 0.0, None)
+    return Stretch(ids.start, len(ids), float(sfm.registered.mean()), float(sfm.K[0, 0]) * scale,
+                   sfm.reprojection_error, sfm.points, sfm.track_length,
+                   _turn(sfm.poses[sfm.registered]))
+
+
+def _turn(poses: np.ndarray) -> float:
+    """Stretch.turn of (N, 4, 4) camera-to-world poses, N >= 1."""
+    axes = poses[:, :3, 2]
+    return float(np.degrees(np.arccos(np.clip(axes[1:] @ axes[0], -1, 1))).max(initial=0))
 
 
 def contrast_enhanced(image: np.ndarray, config: SelfCalibrationConfig) -> np.ndarray:

@@ -46,6 +46,12 @@ class SfmResult:
     """(N,) bool, frames placed by the mapper."""
     seconds: float
     """Wall time of extraction, matching and mapping."""
+    reprojection_error: float
+    """Mean reprojection error of the model's 3D points (px of the input images)."""
+    points: int
+    """3D points in the model."""
+    track_length: float
+    """Mean number of images that observe a 3D point."""
 
 
 def mapping_options() -> pycolmap.IncrementalPipelineOptions:
@@ -155,7 +161,8 @@ def _result(model: pycolmap.Reconstruction, names: list[str], seconds: float,
     registered = np.isfinite(poses).all(axis=(1, 2))
     log.info("%s: SfM registered %d of %d frames, f = %.1f px, in %.1f s", name,
              registered.sum(), len(names), K[0, 0], seconds)
-    return SfmResult(K, poses, registered, seconds)
+    return SfmResult(K, poses, registered, seconds, float(model.compute_mean_reprojection_error()),
+                     int(model.num_points3D()), float(model.compute_mean_track_length()))
 
 
 def _check_images(images: list[np.ndarray], mask: np.ndarray | None, name: str) -> None:
