@@ -78,14 +78,15 @@ class Stretch:
     fx: float | None
     """At the network's size; None when no model was built."""
     reprojection_error: float | None = None
-    """The map's quality, None when no model was built (or for records made before it was
-    kept): mean reprojection error (px of the mapped frames),"""
+    """Mean reprojection error of the map, in px of the square-pixel images given to the
+    mapper. This and the three figures below are None when no model was built, and in records
+    made before they were kept."""
     points: int | None = None
-    """3D points,"""
+    """3D points of the map."""
     track_length: float | None = None
-    """mean frames observing a point,"""
+    """Mean number of frames that observe a point of the map."""
     turn: float | None = None
-    """and the largest angle between the viewing axis of the first placed frame and another's
+    """The largest angle between the viewing axis of the first placed frame and another's
     (degrees). Without such a turn f is undetermined: scaling f and the sideways coordinates
     of every point and camera by reciprocal factors changes no image (a roll about the viewing
     axis does not help either)."""

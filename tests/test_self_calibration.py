@@ -155,7 +155,8 @@ def test_a_stretch_keeps_its_map_quality_and_the_true_turn_of_the_camera(tube_fr
 
 
 def rotated(angles_deg: list[tuple[float, float, float]]) -> np.ndarray:
-    """Camera-to-world poses at one spot, rotated by (pitch, yaw, roll) in degrees."""
+    """Camera-to-world poses at one spot, each rotated by a rotation vector (degrees) about
+    the camera's x (pitch), y (yaw) and z (roll) axes from the world's."""
     poses = np.tile(np.eye(4), (len(angles_deg), 1, 1))
     for pose, angles in zip(poses, angles_deg, strict=True):
         pose[:3, :3] = cv2.Rodrigues(np.radians(angles))[0]
@@ -170,6 +171,15 @@ def rotated(angles_deg: list[tuple[float, float, float]]) -> np.ndarray:
 ])
 def test_turn_of_a_stretch(angles, turn):
     assert _turn(rotated(angles)) == pytest.approx(turn)
+
+
+def test_turn_reads_the_viewing_axis_of_camera_to_world_poses():
+    """A camera pitched to look down the world's vertical, then spun 20 degrees about that
+    vertical, only rolls: no turn (read as world-to-camera poses, it would be 20)."""
+    first, second = rotated([(90, 0, 0), (90, 0, 0)])
+    second[:3, :3] = cv2.Rodrigues(np.radians([0.0, 20.0, 0.0]))[0] @ first[:3, :3]
+    assert _turn(np.stack([first, second])) == pytest.approx(0, abs=1e-6)
+    assert _turn(np.stack([first, second]).transpose(0, 2, 1)) == pytest.approx(20)
 
 
 def dimmed(frame: np.ndarray, gain: float, rng: np.random.Generator) -> np.ndarray:
