@@ -3,10 +3,11 @@ figure of the map (fusion.self_calibration.Stretch) is chosen on some procedures
 on the others, from the stretches `c2d2 eval-depth --self-calibrate --out JSON` recorded (no
 mapping is rerun; the JSONs must come from a version that kept the figures).
 
-First, on the --select procedures: per figure, its median over the mapped stretches within
-the config's `agreement` of the true fx ("right") and over the others ("wrong"), and the
-chance that a random right stretch lies on the good side of a random wrong one (0.5: the
-figure cannot tell them apart). Then, per figure, the candidate bounds are the deciles of the
+First, on the --select procedures, all of them and then per style: per figure, its median
+over the mapped stretches within the config's `agreement` of the true fx ("right") and over
+the others ("wrong"), and the chance that a random right stretch lies on the good side of a
+random wrong one (0.5: the figure cannot tell them apart); and the head's fx error there.
+Then, per figure, the candidate bounds are the deciles of the
 figure over the --select procedures' mapped stretches; a stretch beyond the bound counts as not
 mapped. The bound with the lowest fx error used on the --select procedures (the self-calibrated
 K where the stretches agree, else the head's) is applied to the other procedures, per style and
@@ -63,6 +64,26 @@ def separation(right: list[float], wrong: list[float], sign: int) -> float:
     return float(np.mean((r > w) + 0.5 * (r == w)))
 
 
+def print_separation(label: str, names: list[str], found: dict[str, SelfCalibration],
+                     truth: dict[str, dict]) -> None:
+    """Per figure: its median over the `names`' mapped stretches within the config's
+    `agreement` of the true fx and over the others, and their separation; then the head's mean
+    fx error on `names`."""
+    mapped = [(s, truth[n]["fx_true"]) for n in names for s in found[n].mapped]
+    agreement = found[names[0]].config.agreement
+    right = [s for s, true in mapped if abs(s.fx / true - 1) <= agreement]
+    wrong = [s for s, true in mapped if abs(s.fx / true - 1) > agreement]
+    print(f"\n{label}: {len(names)} procedures, {len(mapped)} mapped stretches, {len(right)} "
+          f"within {agreement:.0%} of the true fx, {len(wrong)} not; the head's fx error "
+          f"{np.mean([truth[n]['fx_head_rel'] for n in names]):.1%}")
+    if right and wrong:
+        print(f"{'figure':18s} {'right':>8s} {'wrong':>8s} {'separation':>10s}")
+        for figure, sign in FIGURES.items():
+            r, w = ([getattr(s, figure) for s in group] for group in (right, wrong))
+            print(f"{figure:18s} {np.median(r):8.3f} {np.median(w):8.3f} "
+                  f"{separation(r, w, sign):10.2f}")
+
+
 def mean_used(errors: dict[str, tuple[float, bool]], names: list[str]) -> float:
     return float(np.mean([errors[n][0] for n in names]))
 
@@ -89,17 +110,10 @@ def main() -> None:
     if any(getattr(s, f) is None for s, _ in mapped for f in FIGURES):
         parser.error("some mapped stretches have no map figures: the JSONs come from a version "
                      "that did not keep them; rerun c2d2 eval-depth --self-calibrate")
-    agreement = found[select[0]].config.agreement
-    right = [s for s, true in mapped if abs(s.fx / true - 1) <= agreement]
-    wrong = [s for s, true in mapped if abs(s.fx / true - 1) > agreement]
-    print(f"--select: {len(select)} procedures, {len(mapped)} mapped stretches, {len(right)} "
-          f"within {agreement:.0%} of the true fx, {len(wrong)} not")
-    print(f"{'figure':18s} {'right':>8s} {'wrong':>8s} {'separation':>10s}")
-    for figure, sign in FIGURES.items():
-        r = [getattr(s, figure) for s in right if getattr(s, figure) is not None]
-        w = [getattr(s, figure) for s in wrong if getattr(s, figure) is not None]
-        print(f"{figure:18s} {np.median(r):8.3f} {np.median(w):8.3f} "
-              f"{separation(r, w, sign):10.2f}")
+    print_separation("--select", select, found, truth)
+    for style in sorted({styles[n] for n in select}):
+        print_separation(f"--select, {style}", [n for n in select if styles[n] == style], found,
+                         truth)
 
     groups = {style: [n for n in scored_names if styles[n] == style]
               for style in sorted({styles[n] for n in scored_names})} | {"all": scored_names}

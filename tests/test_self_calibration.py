@@ -143,7 +143,7 @@ def test_focal_length_of_stretched_pixels_and_a_blank_stretch_that_does_not_coun
 
 def test_a_stretch_keeps_its_map_quality_and_the_true_turn_of_the_camera(tube_frames):
     """A good map gives the true trajectory's turn. (Without the contrast step: with it, this
-    stretch's map drifts by up to 3 degrees of rotation, measured.)"""
+    stretch's map drifted by up to 3 degrees of rotation in a one-off probe.)"""
     found = self_calibrate(tube_frames.__getitem__, 48, MASK, "tube",
                            config=SelfCalibrationConfig(windows=1, length=48, min_agreeing=1,
                                                         contrast=0))
