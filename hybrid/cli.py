@@ -409,7 +409,9 @@ def eval_depth(
     device: Device = "auto",
 ):
     """MRE, DR-MRE, DOM, abs_rel & co., intrinsics error, ATE and RPE on simulated data.
-    With --self-calibrate the intrinsics error is that of the self-calibrated K where the
+    The intrinsics scored are the head's median over all consecutive pairs, as `c2d2 depth`
+    writes them (so every frame is read); ATE and RPE are over the first 150 frames. With
+    --self-calibrate the intrinsics error is that of the self-calibrated K where the
     stretches agree, else of the head's (column self_calibrated: 1 or 0); fx_head_rel is the
     head's own. Depth and trajectory metrics do not change."""
     from learned.adapt import adapt_depth_model

@@ -103,6 +103,13 @@ class DepthConfig:
     in it, so it trains K's head and the motion encoder it shares with the pose) or "both"."""
     display_gamma: float = 2.2
     """Gamma of the video's encoding (the inverse-square law holds for linear intensity)."""
+    w_zoom: float = 0.0
+    """Zoom consistency of the intrinsics head (learned.zoom): the K read from a random crop
+    of a pair, enlarged to the full size, must be the K read from the whole pair carried
+    through the zoom; 0: off."""
+    zoom_max: float = 1.5
+    """Largest zoom of the zoom consistency's crops (their size 1/s of the frame's, s
+    log-uniform in [1, zoom_max])."""
     seed: int = 0
     """Random seed (initialisation and sampling)."""
     init: str = ""
@@ -127,6 +134,9 @@ class DepthConfig:
         if self.shading_steers not in ("depth", "intrinsics", "both"):
             raise ValueError(f"shading_steers must be 'depth', 'intrinsics' or 'both', got "
                              f"{self.shading_steers!r}")
+        if not (self.w_zoom >= 0 and self.zoom_max > 1):
+            raise ValueError(f"w_zoom must be >= 0 and zoom_max > 1, got {self.w_zoom} and "
+                             f"{self.zoom_max}")
         if not self.display_gamma > 0:
             raise ValueError(f"display_gamma must be positive, got {self.display_gamma}")
         if not self.input_fps >= 0:

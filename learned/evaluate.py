@@ -1,7 +1,8 @@
 """Evaluate depth, intrinsics and ego-motion on simulated procedures against their truth.
 
-Per procedure: depth metrics over evenly spaced frames, the aggregated K against the true
-camera, and the chained trajectory over a window against the true poses (Sim(3)-aligned).
+Per procedure: depth metrics over evenly spaced frames, the K aggregated over all its
+consecutive pairs (as `c2d2 depth` writes it) against the true camera, and the chained
+trajectory over a window against the true poses (Sim(3)-aligned).
 """
 
 from __future__ import annotations
@@ -40,14 +41,14 @@ def scored_depths(model: DepthModel, seq: FrameSequence, count: int = 24
 def evaluate_sequence(model: DepthModel, seq: FrameSequence, depth_frames: int = 24,
                       trajectory_frames: int = 150, K: np.ndarray | None = None) -> dict:
     """Metrics of one simulated procedure (seq must carry its true camera and depth). K (3, 3,
-    at the network's size) is scored in place of the intrinsics head's median over the
-    trajectory window's pairs."""
+    at the network's size) is scored in place of the intrinsics head's median over all the
+    consecutive pairs; the trajectory is scored over the first `trajectory_frames`."""
     if seq.camera is None or seq.poses is None:
         raise InputError(f"{seq.name}: no ground truth; eval-depth needs simulated procedures")
     if seq.num_frames < 3:
         raise InputError(f"{seq.name}: needs at least 3 frames for trajectory errors")
-    window = range(0, min(seq.num_frames, trajectory_frames))
-    result = infer_sequence(model, seq, depth=False, frames=window)
+    result = infer_sequence(model, seq, depth=False)
+    window = min(seq.num_frames, trajectory_frames)
     picks, depths = scored_depths(model, seq, depth_frames)
     per_frame = []
     for t, pred in zip(picks, depths, strict=True):
@@ -63,7 +64,7 @@ def evaluate_sequence(model: DepthModel, seq: FrameSequence, depth_frames: int =
     metrics["fx_pred"], metrics["fx_true"] = float(K[0, 0]), float(seq.camera.fx)
     metrics["fx_head"] = float(head[0, 0])
     metrics["fx_head_rel"] = abs(metrics["fx_head"] - metrics["fx_true"]) / metrics["fx_true"]
-    metrics.update(trajectory_errors(result.poses, seq.poses[window.start:window.stop]))
+    metrics.update(trajectory_errors(result.poses[:window], seq.poses[:window]))
     return metrics
 
 

@@ -124,6 +124,8 @@ class LossTerms:
     shading: torch.Tensor
     chain: torch.Tensor = field(default_factory=lambda: torch.zeros(()))
     """Set by DepthModel.loss when config.w_chain > 0."""
+    zoom: torch.Tensor = field(default_factory=lambda: torch.zeros(()))
+    """Set by DepthModel.loss when config.w_zoom > 0."""
 
     def as_floats(self) -> dict[str, float]:
         return {k: float(v.detach()) for k, v in vars(self).items()}

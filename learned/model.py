@@ -16,6 +16,7 @@ from learned.flow import flows_to_sources
 from learned.geometry import compose_chain, mean_transform, transform_from
 from learned.losses import LossTerms, view_synthesis_loss
 from learned.nets import DepthNet, MotionNet
+from learned.zoom import ZoomPairs, zoom_consistency, zoom_pairs
 
 
 class DepthModel(nn.Module):
@@ -73,12 +74,28 @@ class DepthModel(nn.Module):
         terms = view_synthesis_loss(target, sources, depths[:, 1], [depths[:, 0], depths[:, 2]],
                                     motions, K, region, self.config,
                                     flows_to_sources(target, sources, self.config))
-        if self.config.w_chain == 0:
-            return terms
-        if chain_target is None:
-            raise ValueError("config.w_chain > 0 needs the chain_target rotations")
-        chain = (motions[0][0] - chain_target).abs().sum(1).mean()
-        return replace(terms, total=terms.total + self.config.w_chain * chain, chain=chain)
+        if self.config.w_chain:
+            if chain_target is None:
+                raise ValueError("config.w_chain > 0 needs the chain_target rotations")
+            chain = (motions[0][0] - chain_target).abs().sum(1).mean()
+            terms = replace(terms, total=terms.total + self.config.w_chain * chain, chain=chain)
+        if self.config.w_zoom:
+            zoom = self.zoom_loss(frames[:, :2])
+            terms = replace(terms, total=terms.total + self.config.w_zoom * zoom, zoom=zoom)
+        return terms
+
+    def zoom_loss(self, pairs: torch.Tensor) -> torch.Tensor:
+        """Zoom consistency (learned.zoom) of the K read from pairs (B, 2, 3, H, W)."""
+        views = zoom_pairs(pairs, self.config.zoom_max)
+        return zoom_consistency(*self.zoom_intrinsics(views), views.boxes, pairs.shape[-2:])
+
+    def zoom_intrinsics(self, views: ZoomPairs) -> tuple[torch.Tensor, torch.Tensor]:
+        """K (B, 3, 3) the head reads from the zoomed pairs and from the whole ones (frame 1
+        as the target, frame 0 as the source, as DepthModel.loss pairs them)."""
+        # One batch, so that batch norm does not normalise away what all the crops share.
+        both = torch.cat([views.zoomed, views.whole])
+        K = self.pair_motion(both[:, 1], both[:, 0])[-1]
+        return K[:len(views.boxes)], K[len(views.boxes):]
 
 
 @torch.no_grad()

@@ -23,8 +23,10 @@ from hybrid.cli import app
 from hybrid.types import Camera, InputError
 from learned.checkpoint import read_checkpoint, save_checkpoint
 from learned.config import DEPTH_PRESETS
+from learned.evaluate import evaluate_sequence
 from learned.frames import detect_region, open_sequence
 from learned.infer import DepthFiles, infer_sequence
+from learned.metrics import trajectory_errors
 from learned.model import DepthModel, load_depth_model
 
 runner = CliRunner()
@@ -332,6 +334,27 @@ def test_eval_depth_keeps_procedures_of_the_same_name_apart(tmp_path, tiny_check
     procedures = json.loads(out.read_text())["procedures"]
     assert sorted(procedures) == [f"a/{simulated.name}", f"b/{simulated.name}"]
     assert procedures[f"a/{simulated.name}"] == procedures[f"b/{simulated.name}"]
+
+
+def test_eval_depth_scores_the_intrinsics_that_depth_writes(tmp_path, simulated):
+    """The head's K that eval-depth scores is the one `c2d2 depth` writes for the whole input
+    (the median over all consecutive pairs), not that of the trajectory window alone."""
+    torch.manual_seed(0)
+    model = DepthModel(TINY)
+    torch.nn.init.normal_(model.motion.intrinsics.weight, std=0.5)  # K varies with the pair
+    checkpoint = save_model(tmp_path / "varied.safetensors", model, TINY.to_dict())
+    assert run_depth(simulated, tmp_path / "depth", checkpoint).exit_code == 0
+    written = json.loads((tmp_path / "depth" / "intrinsics.json").read_text())["network"]
+    model = load_depth_model(checkpoint)
+    seq = open_sequence(simulated, (TINY.height, TINY.width))
+    metrics = evaluate_sequence(model, seq, depth_frames=2, trajectory_frames=5)
+    assert metrics["fx_head"] == pytest.approx(written["fx"], rel=1e-6)
+    window = infer_sequence(model, seq, depth=False, frames=range(5))
+    assert abs(float(np.median(window.K_pairs[:, 0, 0])) - written["fx"]) > 1e-6 * written["fx"]
+    # The trajectory is still scored over the window alone (to float32 rounding: the frames
+    # go through the network in other batches).
+    assert metrics["ate"] == pytest.approx(
+        trajectory_errors(window.poses, seq.poses[:5])["ate"], rel=1e-4)
 
 
 def test_train_depth_with_an_unknown_preset(tmp_path):

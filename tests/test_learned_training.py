@@ -99,8 +99,9 @@ def test_pair_motion_focal_lengths_stay_positive_after_training_steps(batch):
     assert (K[:, 0, 0] > 0).all() and (K[:, 1, 1] > 0).all()  # softplus > 0 always
 
 
-@pytest.mark.parametrize("config", [TINY, replace(TINY, w_shading=0.1)],
-                         ids=["default", "shading"])
+@pytest.mark.parametrize("config", [TINY, replace(TINY, w_shading=0.1),
+                                    replace(TINY, w_zoom=1.0)],
+                         ids=["default", "shading", "zoom"])
 def test_optimisation_reduces_the_loss_on_a_fixed_batch(batch, config):
     torch.manual_seed(0)
     model = DepthModel(config)
@@ -125,10 +126,11 @@ def test_optimisation_reduces_the_loss_on_a_fixed_batch(batch, config):
     # Both evaluations are deterministic (same batch, same noise), so any drop is real; ask for
     # 5%, far above the 1e-5 tie-break noise, as the sign that 30 Adam steps fit the batch.
     assert after["total"] < 0.95 * before["total"], (before, after)
-    if config.w_shading:  # the prior is in the loss, and training lowers it too
-        assert after["shading"] < before["shading"], (before, after)
-    else:
-        assert before["shading"] == after["shading"] == 0
+    for term, weight in (("shading", config.w_shading), ("zoom", config.w_zoom)):
+        if weight:  # the term is in the loss, and training lowers it too
+            assert after[term] < before[term], (before, after)
+        else:
+            assert before[term] == after[term] == 0
 
 
 def test_checkpoint_round_trip_gives_identical_outputs(tmp_path, batch):
