@@ -6,7 +6,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
+from conftest import TINY
 
+from learned.model import DepthModel
 from learned.zoom import zoom_consistency, zoom_pairs, zoomed_intrinsics
 
 H, W = 48, 64
@@ -79,3 +81,25 @@ def test_consistency_is_zero_for_a_head_that_follows_the_zoom_and_log_s_for_one_
 def test_zoom_of_one_or_less_is_refused():
     with pytest.raises(ValueError, match="zoom_max"):
         zoom_pairs(torch.zeros(1, 2, 3, H, W), zoom_max=1.0)
+
+
+def test_the_model_compares_the_zoomed_k_with_the_whole_k_carried_through_the_zoom():
+    """DepthModel.zoom_loss pairs the K of the crops and of the whole frames in that order
+    (a swap would score the whole K against the crops' K zoomed once more)."""
+    torch.manual_seed(0)
+    model = DepthModel(TINY).eval()  # batch norm on running statistics: batching is moot
+    torch.nn.init.normal_(model.motion.intrinsics.weight, std=0.5)  # K varies with the image
+    pairs = torch.rand(3, 2, 3, TINY.height, TINY.width)
+    torch.manual_seed(1)
+    with torch.no_grad():
+        loss = model.zoom_loss(pairs)
+    torch.manual_seed(1)
+    views = zoom_pairs(pairs, TINY.zoom_max)
+    with torch.no_grad():
+        K_zoomed = model.pair_motion(views.zoomed[:, 1], views.zoomed[:, 0])[-1]
+        K_whole = model.pair_motion(views.whole[:, 1], views.whole[:, 0])[-1]
+    size = (TINY.height, TINY.width)
+    assert float(loss) == pytest.approx(float(zoom_consistency(K_zoomed, K_whole, views.boxes,
+                                                               size)), rel=1e-5)
+    assert abs(float(loss) - float(zoom_consistency(K_whole, K_zoomed, views.boxes, size))
+               ) > 1e-3
