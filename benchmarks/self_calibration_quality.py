@@ -129,7 +129,7 @@ def main() -> None:
 
     row("none", lambda s: True)
     for figure, sign in FIGURES.items():
-        values = [getattr(s, figure) for s, _ in mapped if getattr(s, figure) is not None]
+        values = [getattr(s, figure) for s, _ in mapped]  # none missing: refused above
         bounds = np.quantile(values, np.linspace(0.1, 0.9, 9))
         for names, label in ((select, ""), (scored_names, " (best on the others)")):
             best = min(bounds, key=lambda b: mean_used(

@@ -46,16 +46,20 @@ def zoom_pairs(frames: torch.Tensor, zoom_max: float, generator: torch.Generator
     boxes = []
     for s, (u, v) in zip((zoom_max ** draws[:, 0]).tolist(), draws[:, 1:].tolist(),
                          strict=True):
-        h, w = max(2, round(height / s)), max(2, round(width / s))
+        h, w = _box_size((height, width), s)
         boxes.append((round(u * (width - w)), round(v * (height - h)), w, h))
     return views_of(frames, boxes)
 
 
 def centred_box(size: tuple[int, int], zoom: float) -> tuple[int, int, int, int]:
     """(x0, y0, w, h) of the centred box 1/zoom of an image of size (H, W)."""
-    height, width = size
-    h, w = max(2, round(height / zoom)), max(2, round(width / zoom))
-    return (width - w) // 2, (height - h) // 2, w, h
+    h, w = _box_size(size, zoom)
+    return (size[1] - w) // 2, (size[0] - h) // 2, w, h
+
+
+def _box_size(size: tuple[int, int], zoom: float) -> tuple[int, int]:
+    """(h, w) of a box 1/zoom of an image of size (H, W), in whole pixels."""
+    return max(2, round(size[0] / zoom)), max(2, round(size[1] / zoom))
 
 
 def views_of(frames: torch.Tensor, boxes: list[tuple[int, int, int, int]]) -> ZoomPairs:
