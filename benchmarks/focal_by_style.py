@@ -50,11 +50,12 @@ def main() -> None:
           f"{'head error':>10s} {'training fx':>11s} {'at the true level':>17s}")
     for style, values in sorted(rows.items(), key=lambda item: (item[0] == "all", item[0])):
         true, head = np.array(values).T
+        level = np.exp(np.mean(np.log(true / head)))  # puts the head's level on the truth's
         print(f"{style:6s} {len(true):3d} {true.mean():8.1f} {head.mean():8.1f} "
               f"{np.polyfit(true, head, 1)[0]:6.2f} {np.corrcoef(true, head)[0, 1]:5.2f} "
               f"{np.mean(abs(head / true - 1)):10.1%} "
               f"{np.mean(train.get(style, [np.nan])):11.1f} "
-              f"{np.mean(abs(head * np.exp(np.mean(np.log(true / head))) / true - 1)):17.1%}")
+              f"{np.mean(abs(head * level / true - 1)):17.1%}")
 
 
 if __name__ == "__main__":

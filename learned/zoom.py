@@ -83,7 +83,8 @@ def _enlarge(images: torch.Tensor, size: tuple[int, int] | torch.Size) -> torch.
 def zoomed_intrinsics(K: torch.Tensor, boxes: torch.Tensor, size: tuple[int, int]
                       ) -> torch.Tensor:
     """(B, 3, 3) intrinsics of the boxes (B, 4: x0, y0, w, h) of frames of intrinsics K, each
-    enlarged to size (H, W); pixel centres at integer coordinates."""
+    enlarged to size (H, W); pixel centres at integer coordinates, as in
+    hybrid.types.Camera.resized (here batched, in torch, so that gradients pass)."""
     height, width = size
     sx, sy = width / boxes[:, 2], height / boxes[:, 3]
     out = K.clone()
