@@ -1,0 +1,175 @@
+"""Bounds on the depth network: trained with the simulator's truth, in two ways (ablations).
+
+The shipped depth network learns by view synthesis, without labels and with learned motion
+and K (issue 3). Two runs of the same DepthNet (fast preset, batch, learning rate, frames;
+from train-depth's random start, or from `--init`) tell where its error comes from:
+
+- `--signal labels`: trained on the true depth, with a scale-free loss, the mean absolute
+  deviation of log(pred / true) from its median over each frame's pixels (depth is known
+  only up to scale, and MRE's minimising scale is a median of ratios). What the network can
+  do at its size and resolution.
+- `--signal true-motion`: trained by view synthesis (learned.losses.view_synthesis_loss,
+  train-depth's first-stage settings) with the true motion and K in place of the motion
+  network's. What the loss can do for depth once motion and K are right. The depth's unit
+  stays free, as in train-depth: the true translations are multiplied by one learned factor,
+  which starts at the ratio of the network's median depth to the truth's on the first batch
+  (that forward pass, in training mode, moves the batch-norm statistics once before step 1)
+  (the network starts near its smallest depth; in a first try without the factor the true
+  translations in cm asked for depths 10 times farther at once, and the depth collapsed to
+  one value).
+
+The motion network is copied from `--motion-from` so that `c2d2 eval-depth` can score the
+result as it scores any checkpoint (its K and trajectory figures are that network's):
+
+    .venv/bin/python benchmarks/depth_bounds.py --signal labels --data data/train-pink \
+        data/train-dusk --val data/val --out data/runs/supervised --steps 6000
+    c2d2 eval-depth --data data/heldout --checkpoint data/runs/supervised/model.safetensors
+
+Every 500 steps it logs the training loss, the validation MRE (as train-depth logs it) and
+the translation factor (`depth_unit`; it stays at its start with `labels`, which does not
+use it) to `metrics.jsonl` and saves `checkpoint.safetensors` in --out (a run is not
+resumed); `model.safetensors` when it completes.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+from focal_scan import true_motion
+from tqdm import tqdm
+
+from hybrid.dataset import list_procedures
+from learned.checkpoint import export_weights, save_checkpoint
+from learned.config import DepthConfig
+from learned.frames import open_sequence
+from learned.losses import view_synthesis_loss
+from learned.model import load_depth_model, to_tensor
+from learned.nets import DepthNet
+from learned.train import expand_inputs, validate
+
+
+def scale_free_loss(pred: torch.Tensor, true: torch.Tensor) -> torch.Tensor:
+    """Mean over frames of the mean |log(pred/true) - median| over valid pixels.
+    pred, true (B, H, W); true <= 0 marks no depth."""
+    losses = []
+    for p, t in zip(pred, true, strict=True):
+        valid = t > 0
+        d = torch.log(p[valid]) - torch.log(t[valid])
+        losses.append((d - d.median().detach()).abs().mean())
+    return torch.stack(losses).mean()
+
+
+class Triplets:
+    """(previous, target, next) frames `gap` apart, with the truth, from simulated procedures."""
+
+    def __init__(self, folders: list[Path], config: DepthConfig):
+        self.procs = [p for d in folders for p in list_procedures(d)]
+        self.poses = [p.poses for p in self.procs]
+        self.gaps = [max(1, round(p.camera.fps * config.pair_gap_s)) for p in self.procs]
+        self.counts = np.array([p.num_frames - 2 * g
+                                for p, g in zip(self.procs, self.gaps, strict=True)])
+
+    def batch(self, size: int, rng: np.random.Generator) -> dict[str, torch.Tensor]:
+        """frames (B, 3, 3, H, W), depths (B, 3, H, W), K (B, 3, 3), and the true motions
+        target -> previous and target -> next as view_synthesis_loss takes them."""
+        bounds = np.cumsum(self.counts)
+        frames, depths, Ks, motions = [], [], [], []
+        for pick in rng.choice(bounds[-1], size):
+            k = int(np.searchsorted(bounds, pick, side="right"))
+            proc, gap = self.procs[k], self.gaps[k]
+            t = int(pick - (bounds[k] - self.counts[k])) + gap
+            ids = (t - gap, t, t + gap)
+            frames.append(np.stack([proc.rgb(i) for i in ids]))
+            depths.append(np.stack([proc.depth(i) for i in ids]))
+            Ks.append(proc.camera.K)
+            motions.append([true_motion(self.poses[k], t, s) for s in ids[::2]])
+        return {"frames": to_tensor(np.stack(frames)),
+                "depths": torch.from_numpy(np.stack(depths)).float(),
+                "K": torch.tensor(np.stack(Ks), dtype=torch.float32),
+                "motions": [tuple(torch.cat(parts) for parts in zip(*side, strict=True))
+                            for side in zip(*motions, strict=True)]}
+
+
+def true_motion_loss(depth_net: DepthNet, batch: dict, log_unit: torch.Tensor,
+                     config: DepthConfig) -> torch.Tensor:
+    """train-depth's view-synthesis loss with the true motion and K, the true translations
+    multiplied by exp(log_unit)."""
+    frames = batch["frames"]
+    depths = depth_net(frames.flatten(0, 1)).unflatten(0, frames.shape[:2])
+    region = torch.ones(frames.shape[0], 1, *frames.shape[-2:])
+    unit = log_unit.exp()
+    motions = [(r, t * unit, r_back, t_back * unit) for r, t, r_back, t_back in batch["motions"]]
+    return view_synthesis_loss(frames[:, 1], [frames[:, 0], frames[:, 2]], depths[:, 1],
+                               [depths[:, 0], depths[:, 2]], motions, batch["K"],
+                               region, config).total
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--signal", choices=["labels", "true-motion"], required=True)
+    parser.add_argument("--data", type=Path, nargs="+", required=True)
+    parser.add_argument("--val", type=Path, nargs="+", required=True)
+    parser.add_argument("--out", type=Path, required=True)
+    parser.add_argument("--steps", type=int, default=6000)
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--init", type=Path, help="start from this model's depth network")
+    parser.add_argument("--motion-from", type=Path,
+                        default=Path("learned/checkpoints/depth-fast.safetensors"))
+    args = parser.parse_args()
+    model = load_depth_model(args.motion_from, "fast")
+    config = DepthConfig(seed=args.seed, steps=args.steps)
+    torch.manual_seed(config.seed)
+    model.depth = DepthNet(config)  # train-depth's random start
+    if args.init:
+        model.depth.load_state_dict(load_depth_model(args.init, "fast").depth.state_dict())
+    triplets = Triplets(args.data, config)
+    val = [open_sequence(p, (config.height, config.width)) for p in expand_inputs(args.val)]
+    with torch.no_grad():  # the depth's unit against the truth's, on the first batch
+        first = triplets.batch(config.batch_size, np.random.default_rng([config.seed, 1]))
+        log_unit = torch.log(model.depth(first["frames"][:, 1]).median()
+                             / first["depths"][:, 1].median())
+    log_unit.requires_grad_(args.signal == "true-motion")
+    parameters = [*model.depth.parameters(), *([log_unit] if log_unit.requires_grad else [])]
+    optimizer = torch.optim.Adam(parameters, lr=config.learning_rate)
+    args.out.mkdir(parents=True, exist_ok=True)
+    log = (args.out / "metrics.jsonl").open("w")
+    checkpoint = args.out / "checkpoint.safetensors"  # every 500 steps (no resuming)
+    started, running = time.time(), 0.0
+    model.train()
+    for step in tqdm(range(1, args.steps + 1), desc=f"depth ({args.signal})", unit="step"):
+        batch = triplets.batch(config.batch_size, np.random.default_rng([config.seed, step]))
+        if args.signal == "labels":
+            loss = scale_free_loss(model.depth(batch["frames"][:, 1])[:, 0],
+                                   batch["depths"][:, 1])
+        else:
+            loss = true_motion_loss(model.depth, batch, log_unit, config)
+        if not torch.isfinite(loss):
+            raise FloatingPointError(f"step {step}: the loss is {float(loss)}; the last "
+                                     f"checkpoint in {args.out} is kept")
+        optimizer.zero_grad()
+        loss.backward()
+        torch.nn.utils.clip_grad_norm_(model.depth.parameters(), config.grad_clip)
+        optimizer.step()
+        running += float(loss.detach())
+        if step % 500 == 0 or step == args.steps:
+            record = {"step": step, "loss": running / (step % 500 or 500),
+                      "depth_unit": float(log_unit.exp()),
+                      "val_mre": validate(model, val)["val_mre"],
+                      "seconds": round(time.time() - started, 1)}
+            running = 0.0
+            log.write(json.dumps(record) + "\n")
+            log.flush()
+            tqdm.write(json.dumps(record))
+            save_checkpoint(checkpoint, {"depth": model.depth, "motion": model.motion},
+                            model.config.to_dict(), step)
+    log.close()
+    export_weights(checkpoint, args.out / "model.safetensors")
+
+
+if __name__ == "__main__":
+    main()
