@@ -43,14 +43,13 @@ import torch
 from focal_scan import true_motion
 from tqdm import tqdm
 
-from hybrid.dataset import list_procedures
 from learned.checkpoint import export_weights, save_checkpoint
 from learned.config import DepthConfig
 from learned.frames import open_sequence
 from learned.losses import view_synthesis_loss
 from learned.model import load_depth_model, to_tensor
 from learned.nets import DepthNet
-from learned.train import expand_inputs, validate
+from learned.train import TripletSampler, expand_inputs, validate
 
 
 def scale_free_loss(pred: torch.Tensor, true: torch.Tensor) -> torch.Tensor:
@@ -64,35 +63,24 @@ def scale_free_loss(pred: torch.Tensor, true: torch.Tensor) -> torch.Tensor:
     return torch.stack(losses).mean()
 
 
-class Triplets:
-    """(previous, target, next) frames `gap` apart, with the truth, from simulated procedures."""
-
-    def __init__(self, folders: list[Path], config: DepthConfig):
-        self.procs = [p for d in folders for p in list_procedures(d)]
-        self.poses = [p.poses for p in self.procs]
-        self.gaps = [max(1, round(p.camera.fps * config.pair_gap_s)) for p in self.procs]
-        self.counts = np.array([p.num_frames - 2 * g
-                                for p, g in zip(self.procs, self.gaps, strict=True)])
-
-    def batch(self, size: int, rng: np.random.Generator) -> dict[str, torch.Tensor]:
-        """frames (B, 3, 3, H, W), depths (B, 3, H, W), K (B, 3, 3), and the true motions
-        target -> previous and target -> next as view_synthesis_loss takes them."""
-        bounds = np.cumsum(self.counts)
-        frames, depths, Ks, motions = [], [], [], []
-        for pick in rng.choice(bounds[-1], size):
-            k = int(np.searchsorted(bounds, pick, side="right"))
-            proc, gap = self.procs[k], self.gaps[k]
-            t = int(pick - (bounds[k] - self.counts[k])) + gap
-            ids = (t - gap, t, t + gap)
-            frames.append(np.stack([proc.rgb(i) for i in ids]))
-            depths.append(np.stack([proc.depth(i) for i in ids]))
-            Ks.append(proc.camera.K)
-            motions.append([true_motion(self.poses[k], t, s) for s in ids[::2]])
-        return {"frames": to_tensor(np.stack(frames)),
-                "depths": torch.from_numpy(np.stack(depths)).float(),
-                "K": torch.tensor(np.stack(Ks), dtype=torch.float32),
-                "motions": [tuple(torch.cat(parts) for parts in zip(*side, strict=True))
-                            for side in zip(*motions, strict=True)]}
+def truth_batch(sampler: TripletSampler, size: int, rng: np.random.Generator
+                ) -> dict[str, torch.Tensor]:
+    """Triplets drawn as train-depth draws them, with their truth: frames (B, 3, 3, H, W),
+    depths (B, 3, H, W), K (B, 3, 3), and the true motions target -> previous and target ->
+    next as view_synthesis_loss takes them."""
+    frames, depths, Ks, motions = [], [], [], []
+    for k, t, gap in sampler.draw(size, rng):
+        seq = sampler.sequences[k]
+        ids = (t - gap, t, t + gap)
+        frames.append(np.stack([seq.frame(i) for i in ids]))
+        depths.append(np.stack([seq.depth(i) for i in ids]))
+        Ks.append(seq.camera.K)
+        motions.append([true_motion(seq.poses, t, s) for s in ids[::2]])
+    return {"frames": to_tensor(np.stack(frames)),
+            "depths": torch.from_numpy(np.stack(depths)).float(),
+            "K": torch.tensor(np.stack(Ks), dtype=torch.float32),
+            "motions": [tuple(torch.cat(parts) for parts in zip(*side, strict=True))
+                        for side in zip(*motions, strict=True)]}
 
 
 def true_motion_loss(depth_net: DepthNet, batch: dict, log_unit: torch.Tensor,
@@ -127,10 +115,12 @@ def main() -> None:
     model.depth = DepthNet(config)  # train-depth's random start
     if args.init:
         model.depth.load_state_dict(load_depth_model(args.init, "fast").depth.state_dict())
-    triplets = Triplets(args.data, config)
-    val = [open_sequence(p, (config.height, config.width)) for p in expand_inputs(args.val)]
+    size = (config.height, config.width)
+    sampler = TripletSampler([open_sequence(p, size) for p in expand_inputs(args.data)],
+                             config.pair_gap_s)
+    val = [open_sequence(p, size) for p in expand_inputs(args.val)]
     with torch.no_grad():  # the depth's unit against the truth's, on the first batch
-        first = triplets.batch(config.batch_size, np.random.default_rng([config.seed, 1]))
+        first = truth_batch(sampler, config.batch_size, np.random.default_rng([config.seed, 1]))
         log_unit = torch.log(model.depth(first["frames"][:, 1]).median()
                              / first["depths"][:, 1].median())
     log_unit.requires_grad_(args.signal == "true-motion")
@@ -142,7 +132,7 @@ def main() -> None:
     started, running = time.time(), 0.0
     model.train()
     for step in tqdm(range(1, args.steps + 1), desc=f"depth ({args.signal})", unit="step"):
-        batch = triplets.batch(config.batch_size, np.random.default_rng([config.seed, step]))
+        batch = truth_batch(sampler, config.batch_size, np.random.default_rng([config.seed, step]))
         if args.signal == "labels":
             loss = scale_free_loss(model.depth(batch["frames"][:, 1])[:, 0],
                                    batch["depths"][:, 1])

@@ -77,18 +77,25 @@ class TripletSampler:
                              "(image folders are taken at 30 frames/s unless --fps says "
                              "otherwise)")
 
+    def draw(self, size: int, rng: np.random.Generator) -> list[tuple[int, int, int]]:
+        """`size` triplets drawn uniformly over all targets: (sequence index, target frame,
+        gap)."""
+        bounds = np.cumsum(self.counts)
+        drawn = []
+        for pick in rng.choice(bounds[-1], size):
+            k = int(np.searchsorted(bounds, pick, side="right"))
+            drawn.append((k, int(pick - (bounds[k] - self.counts[k])) + self.gaps[k],
+                          self.gaps[k]))
+        return drawn
+
     def batch(self, size: int, rng: np.random.Generator, device: torch.device | str = "cpu"
               ) -> tuple[torch.Tensor, torch.Tensor]:
         """Frames (B, 3 + n, 3, H, W) in [0, 1] (previous, target, next, then the n =
         chain_steps - 1 frames between previous and target, if chain_steps) and image regions
         (B, 1, H, W), on `device`."""
-        picks = rng.choice(self.counts.sum(), size)
-        bounds = np.cumsum(self.counts)
         frames, regions = [], []
-        for pick in picks:
-            k = int(np.searchsorted(bounds, pick, side="right"))
-            seq, gap = self.sequences[k], self.gaps[k]
-            t = int(pick - (bounds[k] - self.counts[k])) + gap
+        for k, t, gap in self.draw(size, rng):
+            seq = self.sequences[k]
             between = [t - gap + round(j * gap / self.chain_steps)
                        for j in range(1, self.chain_steps)]
             frames.append(np.stack([seq.frame(i) for i in (t - gap, t, t + gap, *between)]))
