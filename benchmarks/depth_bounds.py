@@ -1,8 +1,8 @@
-"""Bounds on the depth network: trained with the simulator's truth, in two ways (ablations).
+"""Bounds on the depth network: trained with the simulator's truth, or with structure from motion.
 
 The shipped depth network learns by view synthesis, without labels and with learned motion
-and K (issue 3). Two runs of the same DepthNet (fast preset, batch, learning rate, frames;
-from train-depth's random start, or from `--init`) tell where its error comes from:
+and K (issue 3). Runs of the same DepthNet (fast preset, batch, learning rate, frames; from
+train-depth's random start, or from `--init`) tell where its error comes from:
 
 - `--signal labels`: trained on the true depth, with a scale-free loss, the mean absolute
   deviation of log(pred / true) from its median over each frame's pixels (depth is known
@@ -17,6 +17,15 @@ from train-depth's random start, or from `--init`) tell where its error comes fr
   (the network starts near its smallest depth; in a first try without the factor the true
   translations in cm asked for depths 10 times farther at once, and the depth collapsed to
   one value).
+- `--signal sfm`: the same view synthesis with the motion and K of structure from motion in
+  place of the true ones: no labels and no calibration (`SfmTriplets`; the maps by
+  `benchmarks/sfm_maps.py`). Triplets come from frames placed in one stretch whose focal
+  length agrees with the procedure's other stretches (the self-calibration's consensus,
+  `fusion.self_calibration`), with at least `--min-points` mapped points seen in the target.
+  Each model has its own unit, so each target's translations are multiplied by the median
+  ratio of the network's depth to the map's at those points (not differentiated). With
+  `--sparse-weight w`, w times the scale-free loss of the network's depth at those points
+  against the map's (the `labels` loss on sparse depth) is added.
 
 The motion network is copied from `--motion-from` so that `c2d2 eval-depth` can score the
 result as it scores any checkpoint (its K and trajectory figures are that network's):
@@ -36,6 +45,7 @@ from __future__ import annotations
 import argparse
 import json
 import time
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -43,9 +53,10 @@ import torch
 from focal_scan import true_motion
 from tqdm import tqdm
 
+from fusion.self_calibration import SelfCalibration, SelfCalibrationConfig, Stretch
 from learned.checkpoint import export_weights, save_checkpoint
 from learned.config import DepthConfig
-from learned.frames import open_sequence
+from learned.frames import FrameSequence, open_sequence
 from learned.losses import view_synthesis_loss
 from learned.model import load_depth_model, to_tensor
 from learned.nets import DepthNet
@@ -63,49 +74,117 @@ def scale_free_loss(pred: torch.Tensor, true: torch.Tensor) -> torch.Tensor:
     return torch.stack(losses).mean()
 
 
-def truth_batch(sampler: TripletSampler, size: int, rng: np.random.Generator
-                ) -> dict[str, torch.Tensor]:
-    """Triplets drawn as train-depth draws them, with their truth: frames (B, 3, 3, H, W),
-    depths (B, 3, H, W), K (B, 3, 3), and the true motions target -> previous and target ->
-    next as view_synthesis_loss takes them."""
-    frames, depths, Ks, motions = [], [], [], []
-    for k, t, gap in sampler.draw(size, rng):
-        seq = sampler.sequences[k]
-        ids = (t - gap, t, t + gap)
-        frames.append(np.stack([seq.frame(i) for i in ids]))
-        depths.append(np.stack([seq.depth(i) for i in ids]))
-        Ks.append(seq.camera.K)
-        motions.append([true_motion(seq.poses, t, s) for s in ids[::2]])
-    return {"frames": to_tensor(np.stack(frames)),
-            "depths": torch.from_numpy(np.stack(depths)).float(),
-            "K": torch.tensor(np.stack(Ks), dtype=torch.float32),
-            "motions": [tuple(torch.cat(parts) for parts in zip(*side, strict=True))
-                        for side in zip(*motions, strict=True)]}
+def triplet_batch(picks: list[tuple[FrameSequence, tuple[int, int, int], np.ndarray, np.ndarray]],
+                  with_depth: bool) -> dict:
+    """Frames (B, 3, 3, H, W) of (previous, target, next), K (B, 3, 3), the motions
+    target -> previous and target -> next as view_synthesis_loss takes them, from each pick's
+    (sequence, frame ids, camera-to-world poses, K); and the true depths (B, 3, H, W) if
+    with_depth."""
+    batch = {"frames": to_tensor(np.stack([np.stack([seq.frame(i) for i in ids])
+                                           for seq, ids, _, _ in picks])),
+             "K": torch.tensor(np.stack([K for *_, K in picks]), dtype=torch.float32),
+             "motions": [tuple(torch.cat(parts) for parts in zip(*side, strict=True))
+                         for side in zip(*[[true_motion(poses, ids[1], s) for s in ids[::2]]
+                                           for _, ids, poses, _ in picks], strict=True)]}
+    if with_depth:
+        batch["depths"] = torch.from_numpy(np.stack([np.stack([seq.depth(i) for i in ids])
+                                                     for seq, ids, _, _ in picks])).float()
+    return batch
 
 
-def true_motion_loss(depth_net: DepthNet, batch: dict, log_unit: torch.Tensor,
-                     config: DepthConfig) -> torch.Tensor:
-    """train-depth's view-synthesis loss with the true motion and K, the true translations
-    multiplied by exp(log_unit)."""
+def truth_batch(sampler: TripletSampler, size: int, rng: np.random.Generator) -> dict:
+    """Triplets drawn as train-depth draws them, with their truth (triplet_batch)."""
+    picks = [(sampler.sequences[k], (t - gap, t, t + gap)) for k, t, gap in sampler.draw(size, rng)]
+    return triplet_batch([(seq, ids, seq.poses, seq.camera.K) for seq, ids in picks], True)
+
+
+class SfmTriplets:
+    """Triplets (train-depth's gaps) of frames placed in one agreeing stretch of a procedure's
+    map (benchmarks/sfm_maps.py), with that stretch's poses and K and the target's sparse
+    depth."""
+
+    def __init__(self, sequences: list[FrameSequence], gaps: list[int], maps: Path,
+                 min_points: int):
+        self.sequences, self.gaps, self.maps = sequences, gaps, []
+        self.triplets: list[tuple[int, int]] = []
+        for k, (seq, gap) in enumerate(zip(sequences, gaps, strict=True)):
+            name = Path(seq.name)
+            found = np.load(maps / f"{name.parent.name}-{name.name}.npz")
+            length = int(found["length"])
+            stretches = [Stretch(int(start), length, float(placed), None if np.isnan(f) else f)
+                         for start, placed, f in zip(found["starts"], found["registered"],
+                                                     found["fx"], strict=True)]
+            calibration = SelfCalibration(seq.num_frames, stretches, SelfCalibrationConfig(
+                windows=max(len(stretches), 2), length=length), seq.size, 1.0)
+            agreeing = ([s.start // length for s in calibration.agreeing]
+                        if calibration.K is not None else [])
+            stretch = np.where(np.isin(found["stretch"], agreeing), found["stretch"], -1)
+            observations = found["observations"]  # sorted by frame
+            points = np.split(observations[:, 1:], np.searchsorted(
+                observations[:, 0].astype(int), np.arange(1, seq.num_frames)))
+            self.maps.append((found["poses"], found["fx"], stretch, points))
+            for t in range(gap, seq.num_frames - gap):
+                if (stretch[t] >= 0 and stretch[t - gap] == stretch[t] == stretch[t + gap]
+                        and len(points[t]) >= min_points):
+                    self.triplets.append((k, t))
+
+    def batch(self, size: int, rng: np.random.Generator) -> dict:
+        """triplet_batch of `size` triplets drawn uniformly, with "points": the targets'
+        sparse depth, each (M, 3) of (x, y, depth in its map's unit)."""
+        picks, points = [], []
+        for pick in rng.choice(len(self.triplets), size):
+            k, t = self.triplets[pick]
+            seq, gap = self.sequences[k], self.gaps[k]
+            poses, fx, stretch, observed = self.maps[k]
+            height, width = seq.size
+            K = np.array([[fx[stretch[t]], 0, (width - 1) / 2],
+                          [0, fx[stretch[t]], (height - 1) / 2], [0, 0, 1]])
+            picks.append((seq, (t - gap, t, t + gap), poses, K))
+            points.append(torch.from_numpy(observed[t]))
+        return triplet_batch(picks, False) | {"points": points}
+
+
+def motion_loss(depth_net: DepthNet, batch: dict, config: DepthConfig,
+                log_unit: torch.Tensor | None = None, sparse_weight: float = 0.0
+                ) -> torch.Tensor:
+    """train-depth's view-synthesis loss with the batch's motion and K. The translations are
+    multiplied by exp(log_unit), or, for a batch with "points", by each target's median ratio
+    of the network's depth to the sparse depth (plus sparse_weight times their scale-free
+    loss)."""
     frames = batch["frames"]
     depths = depth_net(frames.flatten(0, 1)).unflatten(0, frames.shape[:2])
     region = torch.ones(frames.shape[0], 1, *frames.shape[-2:])
-    unit = log_unit.exp()
+    sparse = torch.zeros(())
+    if "points" in batch:
+        height, width = frames.shape[-2:]
+        ratios = [torch.log(d[0, p[:, 1].round().long().clamp(0, height - 1),
+                              p[:, 0].round().long().clamp(0, width - 1)] / p[:, 2])
+                  for d, p in zip(depths[:, 1], batch["points"], strict=True)]
+        medians = torch.stack([r.median() for r in ratios]).detach()
+        unit = medians.exp()[:, None]
+        sparse = torch.stack([(r - m).abs().mean()
+                              for r, m in zip(ratios, medians, strict=True)]).mean()
+    else:
+        unit = log_unit.exp()
     motions = [(r, t * unit, r_back, t_back * unit) for r, t, r_back, t_back in batch["motions"]]
     return view_synthesis_loss(frames[:, 1], [frames[:, 0], frames[:, 2]], depths[:, 1],
                                [depths[:, 0], depths[:, 2]], motions, batch["K"],
-                               region, config).total
+                               region, config).total + sparse_weight * sparse
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--signal", choices=["labels", "true-motion"], required=True)
+    parser.add_argument("--signal", choices=["labels", "true-motion", "sfm"], required=True)
     parser.add_argument("--data", type=Path, nargs="+", required=True)
     parser.add_argument("--val", type=Path, nargs="+", required=True)
     parser.add_argument("--out", type=Path, required=True)
     parser.add_argument("--steps", type=int, default=6000)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--init", type=Path, help="start from this model's depth network")
+    parser.add_argument("--maps", type=Path, help="benchmarks/sfm_maps.py's output (sfm)")
+    parser.add_argument("--min-points", type=int, default=20,
+                        help="sparse depth points a target needs (sfm)")
+    parser.add_argument("--sparse-weight", type=float, default=0.0, help="(sfm)")
     parser.add_argument("--motion-from", type=Path,
                         default=Path("learned/checkpoints/depth-fast.safetensors"))
     args = parser.parse_args()
@@ -119,12 +198,23 @@ def main() -> None:
     sampler = TripletSampler([open_sequence(p, size) for p in expand_inputs(args.data)],
                              config.pair_gap_s)
     val = [open_sequence(p, size) for p in expand_inputs(args.val)]
-    with torch.no_grad():  # the depth's unit against the truth's, on the first batch
-        first = truth_batch(sampler, config.batch_size, np.random.default_rng([config.seed, 1]))
-        log_unit = torch.log(model.depth(first["frames"][:, 1]).median()
-                             / first["depths"][:, 1].median())
-    log_unit.requires_grad_(args.signal == "true-motion")
-    parameters = [*model.depth.parameters(), *([log_unit] if log_unit.requires_grad else [])]
+    parameters = list(model.depth.parameters())
+    if args.signal == "sfm":
+        if args.maps is None:
+            parser.error("--signal sfm needs --maps")
+        triplets = SfmTriplets(sampler.sequences, sampler.gaps, args.maps, args.min_points)
+        if not triplets.triplets:
+            parser.error(f"no triplet of frames placed in an agreeing stretch in {args.maps}")
+        tqdm.write(f"{len(triplets.triplets)} triplets in agreeing stretches")
+        draw, log_unit = triplets.batch, None
+    else:
+        draw = partial(truth_batch, sampler)
+        with torch.no_grad():  # the depth's unit against the truth's, on the first batch
+            first = draw(config.batch_size, np.random.default_rng([config.seed, 1]))
+            log_unit = torch.log(model.depth(first["frames"][:, 1]).median()
+                                 / first["depths"][:, 1].median())
+        if args.signal == "true-motion":
+            parameters.append(log_unit.requires_grad_())
     optimizer = torch.optim.Adam(parameters, lr=config.learning_rate)
     args.out.mkdir(parents=True, exist_ok=True)
     log = (args.out / "metrics.jsonl").open("w")
@@ -132,12 +222,12 @@ def main() -> None:
     started, running = time.time(), 0.0
     model.train()
     for step in tqdm(range(1, args.steps + 1), desc=f"depth ({args.signal})", unit="step"):
-        batch = truth_batch(sampler, config.batch_size, np.random.default_rng([config.seed, step]))
+        batch = draw(config.batch_size, np.random.default_rng([config.seed, step]))
         if args.signal == "labels":
             loss = scale_free_loss(model.depth(batch["frames"][:, 1])[:, 0],
                                    batch["depths"][:, 1])
         else:
-            loss = true_motion_loss(model.depth, batch, log_unit, config)
+            loss = motion_loss(model.depth, batch, config, log_unit, args.sparse_weight)
         if not torch.isfinite(loss):
             raise FloatingPointError(f"step {step}: the loss is {float(loss)}; the last "
                                      f"checkpoint in {args.out} is kept")
@@ -148,7 +238,7 @@ def main() -> None:
         running += float(loss.detach())
         if step % 500 == 0 or step == args.steps:
             record = {"step": step, "loss": running / (step % 500 or 500),
-                      "depth_unit": float(log_unit.exp()),
+                      **({} if log_unit is None else {"depth_unit": float(log_unit.exp())}),
                       "val_mre": validate(model, val)["val_mre"],
                       "seconds": round(time.time() - started, 1)}
             running = 0.0

@@ -52,6 +52,10 @@ class SfmResult:
     """3D points in the model."""
     track_length: float
     """Mean number of images that observe a 3D point."""
+    observations: list[np.ndarray]
+    """Per input frame, (M, 3) float32: the pixel (x, y, OpenCV centres) and the depth along
+    the camera's axis of each 3D point of the model the frame observes, in the model's unit
+    (sparse depth, up to the model's scale); (0, 3) for frames not registered."""
 
 
 def mapping_options() -> pycolmap.IncrementalPipelineOptions:
@@ -154,15 +158,30 @@ def _result(model: pycolmap.Reconstruction, names: list[str], seconds: float,
     K[:2, 2] -= 0.5  # COLMAP puts pixel centres at +0.5, OpenCV at integers
     index = {file: i for i, file in enumerate(names)}
     poses = np.full((len(names), 4, 4), np.nan)
+    observations = [np.zeros((0, 3), np.float32) for _ in names]
     for image in model.images.values():
         if image.has_pose:
             cam_to_world = image.cam_from_world().inverse().matrix()
             poses[index[image.name]] = np.vstack([cam_to_world, [0, 0, 0, 1]])
+            observations[index[image.name]] = _observed(model, image)
     registered = np.isfinite(poses).all(axis=(1, 2))
     log.info("%s: SfM registered %d of %d frames, f = %.1f px, in %.1f s", name,
              registered.sum(), len(names), K[0, 0], seconds)
     return SfmResult(K, poses, registered, seconds, float(model.compute_mean_reprojection_error()),
-                     int(model.num_points3D()), float(model.compute_mean_track_length()))
+                     int(model.num_points3D()), float(model.compute_mean_track_length()),
+                     observations)
+
+
+def _observed(model: pycolmap.Reconstruction, image: pycolmap.Image) -> np.ndarray:
+    """SfmResult.observations of one registered image."""
+    seen = [p for p in image.points2D if p.has_point3D()]
+    if not seen:
+        return np.zeros((0, 3), np.float32)
+    world = np.array([model.points3D[p.point3D_id].xyz for p in seen])
+    cam_from_world = image.cam_from_world().matrix()
+    depth = world @ cam_from_world[2, :3] + cam_from_world[2, 3]
+    xy = np.array([p.xy for p in seen]) - 0.5  # COLMAP's pixel centres to OpenCV's
+    return np.column_stack([xy, depth]).astype(np.float32)
 
 
 def _check_images(images: list[np.ndarray], mask: np.ndarray | None, name: str) -> None:

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pycolmap
 import pytest
-from tube_scene import FOCAL, FRAMES, MASK, K, pose_at, render, wall_texture
+from tube_scene import FOCAL, FRAMES, MASK, K, depth, pose_at, render, wall_texture
 
 from fusion.sfm_baseline import run_sfm
 from hybrid.types import InputError
@@ -26,6 +26,12 @@ def test_sfm_recovers_focal_length_and_trajectory(tmp_path):
     errors = trajectory_errors(result.poses, poses)
     assert errors["ate"] < 0.02  # cm: under 1% of the path
     assert errors["rpe_rotation_deg"] < 0.2
+    # The sparse depth, in the model's unit, is the wall's depth at its pixels up to that scale.
+    for frame in (0, FRAMES // 2, FRAMES - 1):
+        x, y, z = result.observations[frame].T
+        true = depth(poses[frame])[y.round().astype(int), x.round().astype(int)]
+        assert len(z) > 50
+        assert np.median(np.abs(errors["sim3_scale"] * z / true - 1)) < 0.03
     # The camera mask reached COLMAP: every keypoint lies inside it.
     database = pycolmap.Database.open(tmp_path / "database.db")
     for image in database.read_all_images():

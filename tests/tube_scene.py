@@ -32,15 +32,25 @@ def pose_at(i: int) -> np.ndarray:
     return pose
 
 
-def render(pose: np.ndarray, texture: np.ndarray) -> np.ndarray:
-    """RGB of the textured wall by ray-cylinder intersection, darker with distance, masked."""
-    rays = np.stack([(_u - K[0, 2]) / FOCAL, (_v - K[1, 2]) / FOCAL, np.ones(_u.shape)], -1)
-    d, p = rays @ pose[:3, :3].T, pose[:3, 3]
+def _rays(pose: np.ndarray) -> np.ndarray:
+    """World directions of the pixels' rays, scaled to unit depth along the camera's axis."""
+    return np.stack([(_u - K[0, 2]) / FOCAL, (_v - K[1, 2]) / FOCAL, np.ones(_u.shape)],
+                    -1) @ pose[:3, :3].T
+
+
+def depth(pose: np.ndarray) -> np.ndarray:
+    """(HEIGHT, WIDTH) depth along the camera's axis of the wall, by ray-cylinder intersection."""
+    d, p = _rays(pose), pose[:3, 3]
     a = d[..., 0] ** 2 + d[..., 1] ** 2
     b = 2 * (p[0] * d[..., 0] + p[1] * d[..., 1])
     c = p[0] ** 2 + p[1] ** 2 - RADIUS**2
-    z = (-b + np.sqrt(b * b - 4 * a * c)) / (2 * np.maximum(a, 1e-12))
-    hit = p + z[..., None] * d
+    return (-b + np.sqrt(b * b - 4 * a * c)) / (2 * np.maximum(a, 1e-12))
+
+
+def render(pose: np.ndarray, texture: np.ndarray) -> np.ndarray:
+    """RGB of the textured wall, darker with distance, masked."""
+    z = depth(pose)
+    hit = pose[:3, 3] + z[..., None] * _rays(pose)
     size = len(texture)
     col = (np.arctan2(hit[..., 1], hit[..., 0]) + np.pi) / (2 * np.pi) * size
     row = hit[..., 2] / 12.0 * size
