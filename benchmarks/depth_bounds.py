@@ -25,7 +25,10 @@ train-depth's random start, or from `--init`) tell where its error comes from:
   Each model has its own unit, so each target's translations are multiplied by the median
   ratio of the network's depth to the map's at those points (not differentiated). With
   `--sparse-weight w`, w times the scale-free loss of the network's depth at those points
-  against the map's (the `labels` loss on sparse depth) is added.
+  against the map's (the `labels` loss on sparse depth) is added. With `--mixed`, each step
+  also adds train-depth's first-stage loss on a batch drawn as train-depth draws it, with the
+  `--motion-from` network's motion and K (frozen, in eval mode), so that video the maps miss
+  still teaches the depth.
 
 The motion network is copied from `--motion-from` so that `c2d2 eval-depth` can score the
 result as it scores any checkpoint (its K and trajectory figures are that network's):
@@ -185,9 +188,13 @@ def main() -> None:
     parser.add_argument("--min-points", type=int, default=20,
                         help="sparse depth points a target needs (sfm)")
     parser.add_argument("--sparse-weight", type=float, default=0.0, help="(sfm)")
+    parser.add_argument("--mixed", action="store_true",
+                        help="add train-depth's loss with the frozen motion network (sfm)")
     parser.add_argument("--motion-from", type=Path,
                         default=Path("learned/checkpoints/depth-fast.safetensors"))
     args = parser.parse_args()
+    if args.mixed and args.signal != "sfm":
+        parser.error("--mixed is for --signal sfm")
     model = load_depth_model(args.motion_from, "fast")
     config = DepthConfig(seed=args.seed, steps=args.steps)
     torch.manual_seed(config.seed)
@@ -221,6 +228,9 @@ def main() -> None:
     checkpoint = args.out / "checkpoint.safetensors"  # every 500 steps (no resuming)
     started, running = time.time(), 0.0
     model.train()
+    model.motion.requires_grad_(False)  # only the depth network learns
+    if args.mixed:
+        model.config = config  # its loss with train-depth's first-stage settings
     for step in tqdm(range(1, args.steps + 1), desc=f"depth ({args.signal})", unit="step"):
         batch = draw(config.batch_size, np.random.default_rng([config.seed, step]))
         if args.signal == "labels":
@@ -228,6 +238,10 @@ def main() -> None:
                                    batch["depths"][:, 1])
         else:
             loss = motion_loss(model.depth, batch, config, log_unit, args.sparse_weight)
+        if args.mixed:
+            model.motion.eval()  # frozen as at inference (validate() leaves it in train mode)
+            loss = loss + model.loss(*sampler.batch(config.batch_size, np.random.default_rng(
+                [config.seed, step, 1]))).total
         if not torch.isfinite(loss):
             raise FloatingPointError(f"step {step}: the loss is {float(loss)}; the last "
                                      f"checkpoint in {args.out} is kept")
