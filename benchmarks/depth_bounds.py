@@ -193,8 +193,8 @@ def main() -> None:
     parser.add_argument("--motion-from", type=Path,
                         default=Path("learned/checkpoints/depth-fast.safetensors"))
     args = parser.parse_args()
-    if args.mixed and args.signal != "sfm":
-        parser.error("--mixed is for --signal sfm")
+    if args.signal != "sfm" and (args.maps or args.sparse_weight or args.mixed):
+        parser.error("--maps, --sparse-weight and --mixed are for --signal sfm")
     model = load_depth_model(args.motion_from, "fast")
     config = DepthConfig(seed=args.seed, steps=args.steps)
     torch.manual_seed(config.seed)
