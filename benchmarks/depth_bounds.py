@@ -54,6 +54,7 @@ from pathlib import Path
 import numpy as np
 import torch
 from focal_scan import true_motion
+from sfm_maps import map_path
 from tqdm import tqdm
 
 from fusion.self_calibration import SelfCalibration, SelfCalibrationConfig, Stretch
@@ -111,8 +112,7 @@ class SfmTriplets:
         self.sequences, self.gaps, self.maps = sequences, gaps, []
         self.triplets: list[tuple[int, int]] = []
         for k, (seq, gap) in enumerate(zip(sequences, gaps, strict=True)):
-            name = Path(seq.name)
-            found = np.load(maps / f"{name.parent.name}-{name.name}.npz")
+            found = np.load(map_path(maps, seq.name))
             length = int(found["length"])
             stretches = [Stretch(int(start), length, float(placed), None if np.isnan(f) else f)
                          for start, placed, f in zip(found["starts"], found["registered"],

@@ -4,7 +4,7 @@ train the depth network with (`benchmarks/depth_bounds.py --signal sfm`).
 Each procedure is cut into non-overlapping stretches of `--length` consecutive frames, each
 mapped on its own as the self-calibration maps its stretches (`fusion.self_calibration`: the
 frames at the network's size with their lightness equalised, the image region as the camera
-mask, one thread). Per procedure one `<name>.npz` in --out holds, for each frame, the stretch
+mask, one thread). Per procedure one file in --out (`map_path`) holds, for each frame, the stretch
 it belongs to, its camera-to-world pose in its stretch's model (NaN where not placed) and its
 sparse depth (the model's points it observes); and per stretch its first frame, fraction of
 frames placed and focal length. Nothing here reads the ground truth. A procedure whose file
@@ -32,6 +32,12 @@ from fusion.sfm_baseline import NoModel, run_sfm
 from learned.config import DepthConfig
 from learned.frames import open_sequence
 from learned.train import expand_inputs
+
+
+def map_path(maps: Path, procedure: str | Path) -> Path:
+    """The map file of a procedure folder (`<set>-<procedure>.npz`, e.g. train-pink-proc_0000)."""
+    procedure = Path(procedure)
+    return maps / f"{procedure.parent.name}-{procedure.name}.npz"
 
 
 def map_procedure(path: Path, out: Path, length: int) -> str:
@@ -81,7 +87,7 @@ def main() -> None:
     logging.basicConfig(level=logging.WARNING)
     os.environ.setdefault("OMP_NUM_THREADS", "1")
     args.out.mkdir(parents=True, exist_ok=True)
-    todo = [(p, args.out / f"{p.parent.name}-{p.name}.npz") for p in expand_inputs(args.data)]
+    todo = [(p, map_path(args.out, p)) for p in expand_inputs(args.data)]
     todo = [(p, out) for p, out in todo if not out.exists()]
     with ProcessPoolExecutor(args.workers) as pool:
         jobs = [pool.submit(map_procedure, p, out, args.length) for p, out in todo]
