@@ -18,8 +18,8 @@ train-depth's random start, or from `--init`) tell where its error comes from:
   translations in cm asked for depths 10 times farther at once, and the depth collapsed to
   one value).
 - `--signal sfm`: the same view synthesis with the motion and K of structure from motion in
-  place of the true ones: no labels and no calibration (`SfmTriplets`; the maps by
-  `benchmarks/sfm_maps.py`). Triplets come from frames placed in one stretch whose focal
+  place of the true ones: no labels and no calibration (`learned.map_triplets`; the maps by
+  `c2d2 sfm-maps`). Triplets come from frames placed in one stretch whose focal
   length agrees with the procedure's other stretches (the self-calibration's consensus,
   `fusion.self_calibration`), with at least `--min-points` mapped points seen in the target.
   Each model has its own unit, so each target's translations are multiplied by the median
@@ -53,15 +53,13 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from focal_scan import true_motion
-from sfm_maps import map_path
 from tqdm import tqdm
 
-from fusion.self_calibration import SelfCalibration, SelfCalibrationConfig, Stretch
 from learned.checkpoint import export_weights, save_checkpoint
 from learned.config import DepthConfig
-from learned.frames import FrameSequence, open_sequence
+from learned.frames import open_sequence
 from learned.losses import view_synthesis_loss
+from learned.map_triplets import MapBatch, MapTriplets, map_view_loss, relative_motion
 from learned.model import load_depth_model, to_tensor
 from learned.nets import DepthNet
 from learned.train import TripletSampler, expand_inputs, validate
@@ -78,101 +76,41 @@ def scale_free_loss(pred: torch.Tensor, true: torch.Tensor) -> torch.Tensor:
     return torch.stack(losses).mean()
 
 
-def triplet_batch(picks: list[tuple[FrameSequence, tuple[int, int, int], np.ndarray, np.ndarray]],
-                  with_depth: bool) -> dict:
-    """Frames (B, 3, 3, H, W) of (previous, target, next), K (B, 3, 3), the motions
-    target -> previous and target -> next as view_synthesis_loss takes them, from each pick's
-    (sequence, frame ids, camera-to-world poses, K); and the true depths (B, 3, H, W) if
-    with_depth."""
-    batch = {"frames": to_tensor(np.stack([np.stack([seq.frame(i) for i in ids])
-                                           for seq, ids, _, _ in picks])),
-             "K": torch.tensor(np.stack([K for *_, K in picks]), dtype=torch.float32),
-             "motions": [tuple(torch.cat(parts) for parts in zip(*side, strict=True))
-                         for side in zip(*[[true_motion(poses, ids[1], s) for s in ids[::2]]
-                                           for _, ids, poses, _ in picks], strict=True)]}
-    if with_depth:
-        batch["depths"] = torch.from_numpy(np.stack([np.stack([seq.depth(i) for i in ids])
-                                                     for seq, ids, _, _ in picks])).float()
-    return batch
-
-
 def truth_batch(sampler: TripletSampler, size: int, rng: np.random.Generator) -> dict:
-    """Triplets drawn as train-depth draws them, with their truth (triplet_batch)."""
+    """Triplets drawn as train-depth draws them: frames (B, 3, 3, H, W) of (previous, target,
+    next), their true K (B, 3, 3), motions target -> previous and target -> next as
+    view_synthesis_loss takes them, and true depths (B, 3, H, W)."""
     picks = [(sampler.sequences[k], (t - gap, t, t + gap)) for k, t, gap in sampler.draw(size, rng)]
-    return triplet_batch([(seq, ids, seq.poses, seq.camera.K) for seq, ids in picks], True)
+    return {"frames": to_tensor(np.stack([np.stack([seq.frame(i) for i in ids])
+                                          for seq, ids in picks])),
+            "K": torch.tensor(np.stack([seq.camera.K for seq, _ in picks]), dtype=torch.float32),
+            "motions": [tuple(torch.cat(parts) for parts in zip(*side, strict=True))
+                        for side in zip(*[[relative_motion(seq.poses, ids[1], s)
+                                           for s in ids[::2]] for seq, ids in picks],
+                                        strict=True)],
+            "depths": torch.from_numpy(np.stack([np.stack([seq.depth(i) for i in ids])
+                                                 for seq, ids in picks])).float()}
 
 
-class SfmTriplets:
-    """Triplets (train-depth's gaps) of frames placed in one agreeing stretch of a procedure's
-    map (benchmarks/sfm_maps.py), with that stretch's poses and K and the target's sparse
-    depth."""
-
-    def __init__(self, sequences: list[FrameSequence], gaps: list[int], maps: Path,
-                 min_points: int):
-        self.sequences, self.gaps, self.maps = sequences, gaps, []
-        self.triplets: list[tuple[int, int]] = []
-        for k, (seq, gap) in enumerate(zip(sequences, gaps, strict=True)):
-            found = np.load(map_path(maps, seq.name))
-            length = int(found["length"])
-            stretches = [Stretch(int(start), length, float(placed), None if np.isnan(f) else f)
-                         for start, placed, f in zip(found["starts"], found["registered"],
-                                                     found["fx"], strict=True)]
-            calibration = SelfCalibration(seq.num_frames, stretches, SelfCalibrationConfig(
-                windows=max(len(stretches), 2), length=length), seq.size, 1.0)
-            agreeing = ([s.start // length for s in calibration.agreeing]
-                        if calibration.K is not None else [])
-            stretch = np.where(np.isin(found["stretch"], agreeing), found["stretch"], -1)
-            observations = found["observations"]  # sorted by frame
-            points = np.split(observations[:, 1:], np.searchsorted(
-                observations[:, 0].astype(int), np.arange(1, seq.num_frames)))
-            self.maps.append((found["poses"], found["fx"], stretch, points))
-            for t in range(gap, seq.num_frames - gap):
-                if (stretch[t] >= 0 and stretch[t - gap] == stretch[t] == stretch[t + gap]
-                        and len(points[t]) >= min_points):
-                    self.triplets.append((k, t))
-
-    def batch(self, size: int, rng: np.random.Generator) -> dict:
-        """triplet_batch of `size` triplets drawn uniformly, with "points": the targets'
-        sparse depth, each (M, 3) of (x, y, depth in its map's unit)."""
-        picks, points = [], []
-        for pick in rng.choice(len(self.triplets), size):
-            k, t = self.triplets[pick]
-            seq, gap = self.sequences[k], self.gaps[k]
-            poses, fx, stretch, observed = self.maps[k]
-            height, width = seq.size
-            K = np.array([[fx[stretch[t]], 0, (width - 1) / 2],
-                          [0, fx[stretch[t]], (height - 1) / 2], [0, 0, 1]])
-            picks.append((seq, (t - gap, t, t + gap), poses, K))
-            points.append(torch.from_numpy(observed[t]))
-        return triplet_batch(picks, False) | {"points": points}
-
-
-def motion_loss(depth_net: DepthNet, batch: dict, config: DepthConfig,
+def motion_loss(depth_net: DepthNet, batch: dict | MapBatch, config: DepthConfig,
                 log_unit: torch.Tensor | None = None, sparse_weight: float = 0.0
                 ) -> torch.Tensor:
-    """train-depth's view-synthesis loss with the batch's motion and K. The translations are
-    multiplied by exp(log_unit), or, for a batch with "points", by each target's median ratio
-    of the network's depth to the sparse depth (plus sparse_weight times their scale-free
-    loss)."""
+    """train-depth's view-synthesis loss with the batch's motion and K: a MapBatch's as
+    learned.map_triplets.map_view_loss takes them (plus sparse_weight times its sparse
+    depth's loss), the truth's with the translations multiplied by exp(log_unit)."""
+    if isinstance(batch, MapBatch):
+        frames = batch.frames
+        depths = depth_net(frames.flatten(0, 1)).unflatten(0, frames.shape[:2])
+        terms, sparse = map_view_loss(depths, batch, config)
+        return terms.total + sparse_weight * sparse
     frames = batch["frames"]
     depths = depth_net(frames.flatten(0, 1)).unflatten(0, frames.shape[:2])
     region = torch.ones(frames.shape[0], 1, *frames.shape[-2:])
-    sparse = torch.zeros(())
-    if "points" in batch:
-        height, width = frames.shape[-2:]
-        ratios = [torch.log(d[0, p[:, 1].round().long().clamp(0, height - 1),
-                              p[:, 0].round().long().clamp(0, width - 1)] / p[:, 2])
-                  for d, p in zip(depths[:, 1], batch["points"], strict=True)]
-        medians = torch.stack([r.median() for r in ratios]).detach()
-        unit = medians.exp()[:, None]
-        sparse = torch.stack([(r - m).abs().mean()
-                              for r, m in zip(ratios, medians, strict=True)]).mean()
-    else:
-        unit = log_unit.exp()
+    unit = log_unit.exp()
     motions = [(r, t * unit, r_back, t_back * unit) for r, t, r_back, t_back in batch["motions"]]
     return view_synthesis_loss(frames[:, 1], [frames[:, 0], frames[:, 2]], depths[:, 1],
                                [depths[:, 0], depths[:, 2]], motions, batch["K"],
-                               region, config).total + sparse_weight * sparse
+                               region, config).total
 
 
 def main() -> None:
@@ -184,7 +122,7 @@ def main() -> None:
     parser.add_argument("--steps", type=int, default=6000)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--init", type=Path, help="start from this model's depth network")
-    parser.add_argument("--maps", type=Path, help="benchmarks/sfm_maps.py's output (sfm)")
+    parser.add_argument("--maps", type=Path, help="c2d2 sfm-maps's output (sfm)")
     parser.add_argument("--min-points", type=int, default=20,
                         help="sparse depth points a target needs (sfm)")
     parser.add_argument("--sparse-weight", type=float, default=0.0, help="(sfm)")
@@ -209,7 +147,7 @@ def main() -> None:
     if args.signal == "sfm":
         if args.maps is None:
             parser.error("--signal sfm needs --maps")
-        triplets = SfmTriplets(sampler.sequences, sampler.gaps, args.maps, args.min_points)
+        triplets = MapTriplets(sampler.sequences, sampler.gaps, args.maps, args.min_points)
         if not triplets.triplets:
             parser.error(f"no triplet of frames placed in an agreeing stretch in {args.maps}")
         tqdm.write(f"{len(triplets.triplets)} triplets in agreeing stretches")

@@ -30,12 +30,12 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from focal_scan import true_motion
 
 from hybrid.dataset import Procedure, list_procedures
 from learned.config import DepthConfig
 from learned.flow import flows_to_sources
 from learned.losses import view_synthesis_loss
+from learned.map_triplets import relative_motion
 from learned.model import load_depth_model, to_tensor
 
 SPOILED = {"depth^0.63": {"power": 0.63}, "depth^0.8": {"power": 0.8},
@@ -51,7 +51,7 @@ def triplets(procs: list[Procedure], gap_s: float, every: int):
             ids = (t - gap, t, t + gap)
             frames = torch.stack([to_tensor(proc.rgb(i)) for i in ids])[None]
             depths = [torch.from_numpy(proc.depth(i))[None, None].clamp(min=0.01) for i in ids]
-            yield proc, frames, depths, [true_motion(proc.poses, t, s) for s in ids[::2]], K
+            yield proc, frames, depths, [relative_motion(proc.poses, t, s) for s in ids[::2]], K
 
 
 def loss_of(frames, depths, motions, K, config: DepthConfig, power: float = 1.0,
@@ -89,7 +89,7 @@ def systematic_errors(model, procs: list[Procedure], gap_s: float) -> dict[str, 
             b = torch.stack([to_tensor(proc.rgb(t)) for t in ts])
             rotation, _, _, _, K = model.pair_motion(a, b)
             focals.append(float(K[:, 0, 0].median()) / proc.camera.fx)
-            vectors = np.concatenate([true_motion(proc.poses, t - gap, t)[0].numpy()
+            vectors = np.concatenate([relative_motion(proc.poses, t - gap, t)[0].numpy()
                                       for t in ts])
             axes_pred.append(rotation.numpy())
             axes_true.append(vectors)

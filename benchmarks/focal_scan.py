@@ -15,20 +15,12 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from kornia.geometry.conversions import rotation_matrix_to_axis_angle
 
 from hybrid.dataset import list_procedures
 from learned.config import DepthConfig
 from learned.losses import view_synthesis_loss
+from learned.map_triplets import relative_motion
 from learned.model import to_tensor
-
-
-def true_motion(poses: np.ndarray, target: int, source: int) -> tuple[torch.Tensor, ...]:
-    """Axis-angle and translation target->source and source->target from camera-to-world poses."""
-    T = torch.tensor(np.linalg.inv(poses[source]) @ poses[target], dtype=torch.float32)[None]
-    back = torch.linalg.inv(T)
-    return (rotation_matrix_to_axis_angle(T[:, :3, :3]), T[:, :3, 3],
-            rotation_matrix_to_axis_angle(back[:, :3, :3]), back[:, :3, 3])
 
 
 def main() -> None:
@@ -48,7 +40,7 @@ def main() -> None:
             frames = [to_tensor(proc.rgb(i))[None] for i in ids]
             # Pixels without a surface get a tiny depth; they project nowhere useful either way.
             depths = [torch.from_numpy(proc.depth(i))[None, None].clamp(min=0.01) for i in ids]
-            motions = [true_motion(proc.poses, t, s) for s in (ids[0], ids[2])]
+            motions = [relative_motion(proc.poses, t, s) for s in (ids[0], ids[2])]
             region = torch.ones(1, 1, *frames[1].shape[-2:])
             for scale in args.scales:
                 K = K_true.clone()

@@ -22,10 +22,10 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from focal_scan import true_motion
 
 from hybrid.dataset import Procedure, list_procedures
 from learned.config import DepthConfig
+from learned.map_triplets import relative_motion
 from learned.model import DepthModel, to_tensor
 
 
@@ -38,7 +38,7 @@ def triplet(proc: Procedure, t: int, gap: int) -> tuple[torch.Tensor, torch.Tens
 
 def turn_deg(proc: Procedure, a: int, b: int) -> float:
     """True rotation angle between frames a and b, degrees."""
-    return np.degrees(float(true_motion(proc.poses, a, b)[0].norm()))
+    return np.degrees(float(relative_motion(proc.poses, a, b)[0].norm()))
 
 
 def held_out_ratios(model: DepthModel, procs: list[Procedure], gap: int) -> tuple[float, float]:

@@ -1,7 +1,8 @@
 """How good the structure-from-motion training signal is, against the simulator's truth.
 
-For the triplets that `depth_bounds.py --signal sfm` trains on (`SfmTriplets`: frames placed
-in one agreeing stretch of `benchmarks/sfm_maps.py`'s maps), every `--every`-th one is
+For the triplets that `depth_bounds.py --signal sfm` and `train-depth --maps` train on
+(`learned.map_triplets.MapTriplets`: frames placed in one agreeing stretch of `c2d2
+sfm-maps`'s maps), every `--every`-th one is
 scored: the sparse depth's scale-free error (median over the target's points of
 |log(map / true) - their median|), and the motion target -> next against the true one, the
 rotation's error and the angle between the translations, for the map and for the depth
@@ -20,12 +21,11 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from depth_bounds import SfmTriplets
-from focal_scan import true_motion
 from kornia.geometry.conversions import axis_angle_to_rotation_matrix
 
 from learned.config import DepthConfig
 from learned.frames import open_sequence
+from learned.map_triplets import MapTriplets, relative_motion
 from learned.model import load_depth_model, to_tensor
 from learned.train import TripletSampler, expand_inputs
 
@@ -59,7 +59,7 @@ def main() -> None:
                               for p in expand_inputs(args.data)], config.pair_gap_s)
     rows = []
     for k, seq in enumerate(sampler.sequences):
-        triplets = SfmTriplets([seq], [sampler.gaps[k]], args.maps, args.min_points)
+        triplets = MapTriplets([seq], [sampler.gaps[k]], args.maps, args.min_points)
         poses, fx, stretch, points = triplets.maps[0]
         used = np.unique(stretch[stretch >= 0])
         gap = sampler.gaps[k]
@@ -74,7 +74,8 @@ def main() -> None:
                                 np.clip(x.round().astype(int), 0, seq.size[1] - 1)]
             deviation = np.log(z[true > 0] / true[true > 0])  # 0: no surface at that pixel
             row["depth"].append(float(np.median(np.abs(deviation - np.median(deviation)))))
-            mapped, truth = true_motion(poses, t, t + gap), true_motion(seq.poses, t, t + gap)
+            mapped = relative_motion(poses, t, t + gap)
+            truth = relative_motion(seq.poses, t, t + gap)
             with torch.no_grad():
                 r, tr, *_ = model.pair_motion(to_tensor(seq.frame(t))[None],
                                               to_tensor(seq.frame(t + gap))[None])

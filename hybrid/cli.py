@@ -317,6 +317,10 @@ def train_depth(
                                               "folders, if theirs is missing or wrong (not for "
                                               "simulated procedures; kept by the run)."
                                               )] = None,
+    maps: Annotated[Path | None, typer.Option(
+        help="Structure-from-motion maps of the --data inputs (c2d2 sfm-maps): each step also "
+             "trains on triplets of their agreeing stretches, weighted by --set w_map=W "
+             "(depth) and --set w_map_motion=W (motion and intrinsics).")] = None,
     device: Device = "auto",
 ):
     """Train depth, ego-motion and intrinsics by view synthesis; resumes from --out."""
@@ -329,10 +333,41 @@ def train_depth(
     try:
         config = depth_config(preset, **_with_options(
             parse_overrides(set_ or []), steps=steps, batch_size=batch_size, seed=seed,
-            init=None if init is None else str(init), input_fps=fps))
+            init=None if init is None else str(init), input_fps=fps,
+            maps=None if maps is None else str(maps)))
     except ValueError as err:
         raise InputError(str(err)) from err
     typer.echo(str(run(data, out, config, val or [], device=pick_device(device))))
+
+
+@app.command("sfm-maps")
+@_reports_input_errors
+def sfm_maps(
+    data: Annotated[list[Path], typer.Option(help="Training inputs, as train-depth takes them.")],
+    out: Annotated[Path, typer.Option(help="Folder of maps, one .npz per input; inputs "
+                                      "already mapped there are skipped.")],
+    preset: Annotated[str, typer.Option(help="Preset whose frame size the maps are made at "
+                                        "(train-depth's).")] = "fast",
+    length: Annotated[int, typer.Option(help="Frames per stretch, each mapped on its own.")
+                      ] = 120,
+    workers: Annotated[int, typer.Option(help="Inputs mapped at once (one core each).")] = 1,
+):
+    """Map every stretch of the training inputs by structure from motion (pycolmap), for
+    train-depth --maps: per frame its pose and sparse depth, per stretch its focal length."""
+    from tqdm import tqdm
+
+    from fusion.sfm_maps import map_inputs
+    from learned.config import depth_config
+    from learned.train import expand_inputs
+
+    try:
+        config = depth_config(preset)
+    except ValueError as err:
+        raise InputError(str(err)) from err
+    inputs = expand_inputs(data)
+    for line in tqdm(map_inputs(inputs, out, (config.height, config.width), length, workers),
+                     total=len(inputs), desc="sfm-maps", unit="input"):
+        tqdm.write(line)
 
 
 @app.command()

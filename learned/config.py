@@ -110,6 +110,17 @@ class DepthConfig:
     zoom_max: float = 1.5
     """Largest zoom of the zoom consistency's crops (their size 1/s of the frame's, s
     log-uniform in [1, zoom_max])."""
+    maps: str = ""
+    """Folder of structure-from-motion maps of the training inputs (`c2d2 sfm-maps`); each
+    step then also draws a batch of triplets from their agreeing stretches
+    (learned.map_triplets); empty: none."""
+    w_map: float = 0.0
+    """View synthesis of the map batch with the maps' motion and K (trains the depth)."""
+    w_map_motion: float = 0.0
+    """Distance of the motion network's rotation, translation direction and focal length
+    from the maps' on the map batch (trains the motion network and its intrinsics head)."""
+    map_min_points: int = 20
+    """Map points a target must see to be drawn (they set the maps' unit)."""
     seed: int = 0
     """Random seed (initialisation and sampling)."""
     init: str = ""
@@ -134,6 +145,13 @@ class DepthConfig:
         if self.shading_steers not in ("depth", "intrinsics", "both"):
             raise ValueError(f"shading_steers must be 'depth', 'intrinsics' or 'both', got "
                              f"{self.shading_steers!r}")
+        if not (self.w_map >= 0 and self.w_map_motion >= 0 and self.map_min_points >= 1) or \
+                bool(self.maps) != bool(self.w_map or self.w_map_motion):
+            raise ValueError(f"maps (train-depth --maps) need w_map or w_map_motion > 0 "
+                             f"(e.g. --set w_map=1), weights >= 0 and map_min_points >= 1, and "
+                             f"those weights need maps; got "
+                             f"maps={self.maps!r}, w_map={self.w_map}, w_map_motion="
+                             f"{self.w_map_motion}, map_min_points={self.map_min_points}")
         if not (self.w_zoom >= 0 and self.zoom_max > 1):
             raise ValueError(f"w_zoom must be >= 0 and zoom_max > 1, got {self.w_zoom} and "
                              f"{self.zoom_max}")

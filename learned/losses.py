@@ -126,6 +126,12 @@ class LossTerms:
     """Set by DepthModel.loss when config.w_chain > 0."""
     zoom: torch.Tensor = field(default_factory=lambda: torch.zeros(()))
     """Set by DepthModel.loss when config.w_zoom > 0."""
+    map_view: torch.Tensor = field(default_factory=lambda: torch.zeros(()))
+    """This and the three below: set by learned.map_triplets.with_map_terms (train-depth
+    --maps)."""
+    map_rotation: torch.Tensor = field(default_factory=lambda: torch.zeros(()))
+    map_direction: torch.Tensor = field(default_factory=lambda: torch.zeros(()))
+    map_focal: torch.Tensor = field(default_factory=lambda: torch.zeros(()))
 
     def as_floats(self) -> dict[str, float]:
         return {k: float(v.detach()) for k, v in vars(self).items()}

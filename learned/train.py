@@ -1,6 +1,7 @@
 """Unsupervised training of depth, ego-motion and intrinsics by view synthesis, on RGB only.
 
-Reads simulated procedures, folders of images or videos; writes into the output folder
+Reads simulated procedures, folders of images or videos (and, with config.maps, their
+structure-from-motion maps: learned.map_triplets); writes into the output folder
 `checkpoint.safetensors` (weights, optimiser, step, config), `model.safetensors` (the weights
 alone, when the run completes), `config.json` and
 `metrics.jsonl` (training losses; validation metrics where ground truth exists, which is used
@@ -31,6 +32,7 @@ from learned.checkpoint import (
 from learned.config import DEPTH_PRESETS, DepthConfig
 from learned.device import device_of
 from learned.frames import VIDEO_SUFFIXES, FrameSequence, open_sequence
+from learned.map_triplets import MapTriplets, with_map_terms
 from learned.metrics import intrinsics_error, mre
 from learned.model import DepthModel, chained_rotation, load_depth_model, to_tensor
 
@@ -151,6 +153,12 @@ def train_depth(data: list[Path | FrameSequence], out: Path, config: DepthConfig
     paths = expand_inputs([d for d in data if not isinstance(d, FrameSequence)])
     sampler = TripletSampler(opened + [open_sequence(p, size, fps=fps) for p in paths],
                              config.pair_gap_s, config.chain_steps if config.w_chain else 0)
+    maps = MapTriplets(sampler.sequences, sampler.gaps, Path(config.maps),
+                       config.map_min_points) if config.maps else None
+    if maps is not None and not maps.triplets:
+        raise InputError(f"{config.maps}: no triplet of frames lies in an agreeing stretch of "
+                         f"the maps with {config.map_min_points} map points; the inputs map "
+                         f"too rarely to train on (train without --maps)")
     val_sequences = [s for s in (open_sequence(p, size) for p in expand_inputs(list(val)))
                      if s.camera is not None]
     torch.manual_seed(config.seed)
@@ -179,6 +187,9 @@ def train_depth(data: list[Path | FrameSequence], out: Path, config: DepthConfig
         frames, regions = sampler.batch(config.batch_size, rng, device)
         terms = model.loss(frames, regions, chain_target=chained_rotation(teacher, frames)
                            if config.w_chain else None)
+        if maps is not None:
+            terms = with_map_terms(terms, model, maps.batch(
+                config.batch_size, np.random.default_rng([config.seed, step, 1]), device))
         optimizer.zero_grad()
         terms.total.backward()
         for group in optimizer.param_groups:

@@ -1,0 +1,205 @@
+"""fusion.sfm_maps and learned.map_triplets: real pycolmap maps of a textured tube
+(tests/tube_scene.py) as the training signal of `train-depth --maps`."""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import replace
+
+import cv2
+import numpy as np
+import pytest
+import torch
+from conftest import TINY
+from kornia.geometry.conversions import axis_angle_to_rotation_matrix
+from tube_scene import FOCAL, FRAMES, HEIGHT, WIDTH, depth, pose_at, render, wall_texture
+from typer.testing import CliRunner
+
+from fusion.sfm_maps import map_inputs, map_path
+from hybrid.cli import app
+from hybrid.types import InputError
+from learned.config import DepthConfig
+from learned.frames import open_sequence
+from learned.map_triplets import (
+    MapTriplets,
+    map_motion_errors,
+    map_view_loss,
+    relative_motion,
+    with_map_terms,
+)
+from learned.model import DepthModel
+from learned.train import TripletSampler, train_depth
+
+pytestmark = pytest.mark.usefixtures("one_thread")
+CONFIG = replace(TINY, height=HEIGHT, width=WIDTH, pair_gap_s=0.1)
+"""The tube's own size; gaps of 3 frames (image folders play at 30 frames/s)."""
+LENGTH = FRAMES // 2
+POSES = np.stack([pose_at(i) for i in range(FRAMES)])
+
+
+@pytest.fixture(scope="module")
+def tube(tmp_path_factory):
+    """The tube as an image folder, and its maps in two stretches of 12 frames."""
+    root = tmp_path_factory.mktemp("tube")
+    folder = root / "tube"
+    folder.mkdir()
+    texture = wall_texture()
+    for i, pose in enumerate(POSES):
+        cv2.imwrite(str(folder / f"{i:04d}.png"), render(pose, texture))
+    lines = list(map_inputs([folder], root / "maps", (HEIGHT, WIDTH), LENGTH))
+    return folder, root / "maps", lines
+
+
+@pytest.fixture(scope="module")
+def triplets(tube):
+    folder, maps, _ = tube
+    sampler = TripletSampler([open_sequence(folder, (HEIGHT, WIDTH))], CONFIG.pair_gap_s)
+    return MapTriplets(sampler.sequences, sampler.gaps, maps, CONFIG.map_min_points)
+
+
+def test_each_stretch_is_mapped_with_its_focal_length_poses_and_sparse_depth(tube):
+    folder, maps, lines = tube
+    assert lines == [f"{folder}: 2 of 2 stretches mapped, {FRAMES} frames placed"]
+    found = np.load(map_path(maps, folder))
+    assert tuple(found["size"]) == (HEIGHT, WIDTH) and int(found["length"]) == LENGTH
+    np.testing.assert_array_equal(found["starts"], [0, LENGTH])
+    np.testing.assert_array_equal(found["stretch"], np.repeat([0, 1], LENGTH))
+    assert np.all(np.abs(found["fx"] / FOCAL - 1) < 0.1)
+    observations = found["observations"]
+    assert np.all(np.diff(observations[:, 0]) >= 0)  # sorted by frame
+    for k in (0, 1):  # each stretch has its own unit: the truth up to one factor per stretch
+        mine = observations[(observations[:, 0] // LENGTH) == k]
+        true = np.array([depth(POSES[int(i)])[round(y), round(x)] for i, x, y, _ in mine])
+        ratio = mine[:, 3] / true
+        assert np.median(np.abs(ratio / np.median(ratio) - 1)) < 0.03
+    # A finished input is not mapped again.
+    assert list(map_inputs([folder], maps, (HEIGHT, WIDTH), LENGTH)) == [
+        f"{folder}: already mapped in {map_path(maps, folder)}"]
+
+
+def test_triplets_lie_in_one_stretch_and_carry_its_motion(triplets):
+    gap = triplets.gaps[0]
+    targets = [t for _, t in triplets.triplets]
+    assert targets == [t for t in range(gap, FRAMES - gap) if (t - gap) // LENGTH ==
+                       (t + gap) // LENGTH]
+    batch = triplets.batch(4, np.random.default_rng(0))
+    assert batch.frames.shape == (4, 3, 3, HEIGHT, WIDTH)
+    assert torch.allclose(batch.K[:, 0, 0], batch.K[:, 1, 1])
+    for side, motion in zip((-gap, gap), batch.motions, strict=True):
+        for j, pick in enumerate(np.random.default_rng(0).choice(len(targets), 4)):
+            t = targets[pick]
+            rotation, translation, *_ = relative_motion(POSES, t, t + side)
+            error = axis_angle_to_rotation_matrix(motion[0][j:j + 1]).mT @ \
+                axis_angle_to_rotation_matrix(rotation)
+            assert math.degrees(math.acos(min(1.0, (error[0].trace() - 1) / 2))) < 0.3
+            cosine = torch.cosine_similarity(motion[1][j], translation[0], dim=0)
+            assert cosine > math.cos(math.radians(3))
+
+
+def test_map_view_loss_does_not_depend_on_the_depths_unit(triplets):
+    batch = triplets.batch(2, np.random.default_rng(1))
+    picks = [triplets.triplets[p][1] for p in np.random.default_rng(1).choice(
+        len(triplets.triplets), 2)]
+    gap = triplets.gaps[0]
+    true = torch.tensor(np.stack([np.stack([depth(POSES[i]) for i in (t - gap, t, t + gap)])
+                                  for t in picks]), dtype=torch.float32)[:, :, None]
+
+    def loss(depths):
+        torch.manual_seed(0)  # the same auto-mask tie-breaking noise each time
+        terms, sparse = map_view_loss(depths, batch, CONFIG)
+        return float(terms.photometric), float(sparse)
+
+    at_truth, sparse = loss(true)
+    assert loss(3.7 * true) == pytest.approx((at_truth, sparse), rel=1e-4)
+    assert sparse < 0.03  # the map's depth is the truth's up to its unit
+    flat = torch.full_like(true, float(true.median()))
+    assert loss(flat)[0] > 1.2 * at_truth
+
+
+def test_map_motion_errors_against_hand_computed_cases(triplets):
+    batch = triplets.batch(3, np.random.default_rng(2))
+    assert [float(e) for e in map_motion_errors(batch.motions, batch.K, batch)] == [0, 0, 0]
+    turned = [(r + torch.tensor([0.01, -0.02, 0.0]), -t, rb, tb)
+              for r, t, rb, tb in batch.motions]
+    K = batch.K.clone()
+    K[:, 0, 0] *= 2
+    rotation, direction, focal = map_motion_errors(turned, K, batch)
+    assert float(rotation) == pytest.approx(0.03)
+    assert float(direction) == pytest.approx(2.0)
+    assert float(focal) == pytest.approx(0.5 * math.log(2))
+
+
+def test_training_steps_on_the_maps_lower_their_terms(triplets):
+    torch.manual_seed(0)
+    config = replace(CONFIG, maps="given", w_map=1.0, w_map_motion=1.0)
+    model = DepthModel(config)
+    batch = triplets.batch(2, np.random.default_rng(3))
+    plain = model.loss(batch.frames, batch.regions)
+
+    def terms():
+        torch.manual_seed(1)
+        with torch.no_grad():
+            return with_map_terms(plain, model, batch).as_floats()
+
+    before = terms()
+    optimizer = torch.optim.Adam(model.parameters(), lr=1e-3)
+    for step in range(30):
+        torch.manual_seed(100 + step)
+        loss = with_map_terms(model.loss(batch.frames, batch.regions), model, batch).total
+        optimizer.zero_grad()
+        loss.backward()
+        optimizer.step()
+    after = terms()
+    for term in ("map_view", "map_rotation", "map_direction", "map_focal"):
+        assert after[term] < before[term], (term, before, after)
+
+
+def test_train_depth_with_maps_logs_their_terms(tube, tmp_path):
+    folder, maps, _ = tube
+    config = replace(CONFIG, steps=2, maps=str(maps), w_map=1.0, w_map_motion=0.5)
+    train_depth([folder], tmp_path / "run", config, log_every=1, progress=False)
+    records = [json.loads(line) for line in (tmp_path / "run/metrics.jsonl").open()]
+    assert [r["step"] for r in records] == [1, 2]
+    for r in records:
+        assert r["map_view"] > 0 and r["map_focal"] > 0
+        assert r["total"] > r["photometric"] + r["map_view"]
+    saved = DepthConfig.from_dict(json.loads((tmp_path / "run/config.json").read_text()))
+    assert saved.maps == str(maps) and saved.w_map_motion == 0.5
+
+
+def test_bad_maps_are_named(tube, tmp_path):
+    folder, maps, _ = tube
+    seq = open_sequence(folder, (HEIGHT, WIDTH))
+    with pytest.raises(InputError, match="c2d2 sfm-maps"):
+        MapTriplets([seq], [3], tmp_path, 20)
+    small = open_sequence(folder, (64, 80))
+    with pytest.raises(InputError, match="24 frames of 128x160, but .* 24 of 64x80"):
+        MapTriplets([small], [3], maps, 20)
+    with pytest.raises(InputError, match="too rarely"):
+        train_depth([folder], tmp_path / "run", replace(
+            CONFIG, steps=1, maps=str(maps), w_map=1.0, map_min_points=10**6), progress=False)
+    for fields in ({"maps": str(maps)}, {"w_map": 1.0}, {"w_map_motion": 1.0},
+                   {"maps": str(maps), "w_map": -1.0}):
+        with pytest.raises(ValueError, match="need w_map"):
+            replace(CONFIG, **fields)
+
+
+def test_the_commands_take_the_maps(tube, tmp_path):
+    folder, maps, _ = tube
+    runner = CliRunner()
+    result = runner.invoke(app, ["sfm-maps", "--data", str(folder), "--out", str(maps)])
+    assert result.exit_code == 0 and "already mapped" in result.output
+    assert runner.invoke(app, ["sfm-maps", "--help"]).exit_code == 0
+    train = ["train-depth", "--data", str(folder), "--out", str(tmp_path / "run"), "--steps",
+             "1", "--device", "cpu"]
+    for extra, names in (
+            (["--preset", "huge"], ["huge"]),
+            (["--maps", str(tmp_path), "--set", "w_map=1"], ["no map", "c2d2 sfm-maps"]),
+            (["--maps", str(maps)], ["need w_map", "--set w_map=1"]),
+            (["--set", "w_map=1"], ["weights need maps"])):
+        command = [*train, *extra] if extra[0] != "--preset" else \
+            ["sfm-maps", "--data", str(folder), "--out", str(tmp_path), *extra]
+        result = runner.invoke(app, command)
+        assert result.exit_code == 2 and result.stderr.startswith("error: "), result.output
+        assert all(name in result.stderr for name in names), result.stderr
