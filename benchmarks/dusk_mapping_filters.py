@@ -25,9 +25,11 @@ from fusion.sfm_baseline import NoModel, run_sfm
 from learned.config import DepthConfig
 from learned.frames import open_sequence
 
-FILTERS = {"none": lambda im: im,
-           "nlm": lambda im: cv2.fastNlMeansDenoisingColored(im, None, 10, 10, 5, 15),
-           "bilateral": lambda im: cv2.bilateralFilter(im, 7, 40, 5)}
+FILTERS = {"none": lambda rgb: rgb,
+           "nlm": lambda rgb: cv2.fastNlMeansDenoisingColored(rgb[..., ::-1].copy(), None, 10,
+                                                               10, 5, 15)[..., ::-1].copy(),
+           "bilateral": lambda rgb: cv2.bilateralFilter(rgb, 7, 40, 5)}
+"""Each takes and gives RGB uint8 (OpenCV's colour denoising expects BGR)."""
 
 
 def main() -> None:
@@ -43,6 +45,9 @@ def main() -> None:
     print("| --- | --- | --- | --- |")
     for path in args.data:
         seq = open_sequence(path, (config.height, config.width))
+        if max(args.starts) + args.length > seq.num_frames:
+            parser.error(f"{path}: {seq.num_frames} frames, too few for a stretch of "
+                         f"{args.length} at frame {max(args.starts)}")
         for start in args.starts:
             images = [contrast_enhanced(FILTERS[args.filter](seq.frame(i)), contrast)
                       for i in range(start, start + args.length)]

@@ -60,7 +60,7 @@ def main() -> None:
     rows = []
     for k, seq in enumerate(sampler.sequences):
         triplets = MapTriplets([seq], [sampler.gaps[k]], args.maps, args.min_points)
-        poses, fx, stretch, points = triplets.maps[0]
+        poses, fx, _, stretch, points = triplets.maps[0]
         used = np.unique(stretch[stretch >= 0])
         gap = sampler.gaps[k]
         row = {"procedure": seq.name, "stretches": len(fx),

@@ -188,23 +188,16 @@ def self_calibrate(frame: Callable[[int], np.ndarray], count: int, region: np.nd
     """Map each stretch of the `count` frames.
 
     frame(i): RGB uint8 (H, W, 3) at the network's size; region: (H, W) bool image region;
-    pixel_aspect: fy / fx of the frames (not 1 where the network's resize stretched the two
-    axes of a crop with square pixels differently). The mapper's camera has square pixels, so
-    each frame is first enlarged along one axis to square pixels (a smaller image maps fewer
-    of its frames), and f is scaled back along each axis.
+    pixel_aspect: fy / fx of the frames; each frame is first enlarged to square pixels
+    (`SquarePixels`), and f is scaled back along each axis.
     """
     height, width = region.shape
-    columns = round(width * max(pixel_aspect, 1.0))
-    rows = round(height * max(1 / pixel_aspect, 1.0))
-
-    def square(image: np.ndarray) -> np.ndarray:
-        return image if (rows, columns) == (height, width) else cv2.resize(
-            image, (columns, rows), interpolation=cv2.INTER_LINEAR)
+    square = SquarePixels((height, width), pixel_aspect)
 
     def prepared(index: int) -> np.ndarray:
         return square(contrast_enhanced(frame(index), config))
 
-    mask = square(region.astype(np.uint8) * 255) > 127
+    mask = square.mask(region)
     starts = stretch_starts(count, config)
     if len(starts) < config.min_agreeing:
         starts = []  # no consensus possible: spare the mapping
@@ -213,9 +206,8 @@ def self_calibrate(frame: Callable[[int], np.ndarray], count: int, region: np.nd
     for ids in tqdm(spans, desc=f"self-calibrate {name}", disable=not progress,
                     unit="stretch"):
         found.append(_map_stretch(ids, [prepared(i) for i in ids], mask,
-                                  f"{name} frames {ids.start}-{ids.stop - 1}", width / columns))
-    return SelfCalibration(count, found, config, (height, width),
-                           (height / rows) / (width / columns))
+                                  f"{name} frames {ids.start}-{ids.stop - 1}", square.scale[0]))
+    return SelfCalibration(count, found, config, (height, width), square.fy_over_fx)
 
 
 def _map_stretch(ids: range, images: list[np.ndarray], mask: np.ndarray, name: str,
@@ -236,6 +228,44 @@ def _turn(poses: np.ndarray) -> float:
     """Stretch.turn of (N, 4, 4) camera-to-world poses, N >= 1."""
     axes = poses[:, :3, 2]
     return float(np.degrees(np.arccos(np.clip(axes[1:] @ axes[0], -1, 1))).max(initial=0))
+
+
+@dataclass(frozen=True)
+class SquarePixels:
+    """Frames of `size` (H, W) whose pixels have the aspect `pixel_aspect` (fy / fx, not 1
+    where the network's resize stretched the two axes of a crop with square pixels
+    differently), enlarged along one axis to square pixels for the mapper, whose camera has
+    square pixels (a smaller image maps fewer of its frames)."""
+
+    size: tuple[int, int]
+    pixel_aspect: float
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """(rows, columns) of the enlarged frames."""
+        height, width = self.size
+        return (round(height * max(1 / self.pixel_aspect, 1.0)),
+                round(width * max(self.pixel_aspect, 1.0)))
+
+    @property
+    def scale(self) -> tuple[float, float]:
+        """Frame pixels per enlarged pixel along x and y (f and pixel coordinates back)."""
+        (height, width), (rows, columns) = self.size, self.shape
+        return width / columns, height / rows
+
+    @property
+    def fy_over_fx(self) -> float:
+        """fy / fx of the frames for a square-pixel f of the mapper."""
+        return self.scale[1] / self.scale[0]
+
+    def __call__(self, image: np.ndarray) -> np.ndarray:
+        rows, columns = self.shape
+        return image if self.shape == tuple(self.size) else cv2.resize(
+            image, (columns, rows), interpolation=cv2.INTER_LINEAR)
+
+    def mask(self, region: np.ndarray) -> np.ndarray:
+        """The enlarged (H, W) bool image region."""
+        return self(region.astype(np.uint8) * 255) > 127
 
 
 def contrast_enhanced(image: np.ndarray, config: SelfCalibrationConfig) -> np.ndarray:

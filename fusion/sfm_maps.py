@@ -6,9 +6,12 @@ its own as the self-calibration maps its stretches (`fusion.self_calibration`: t
 the depth network's size with their lightness equalised, the image region as the camera mask,
 one thread). Per input one file (`map_path`) holds, for each frame, the stretch it belongs to,
 its camera-to-world pose in its stretch's model (NaN where not placed) and its sparse depth
-(the model's points it observes); and per stretch its first frame, fraction of frames placed
-and focal length. Nothing here reads a ground truth. An input whose file exists is skipped, so
-an interrupted run resumes; files are written whole or not at all.
+(the model's points it observes); per stretch its first frame, fraction of frames placed
+and fx; and the input's resolved path, frame size and fy / fx (frames whose pixels are not
+square are mapped enlarged to square pixels, as the self-calibration maps them, and f and
+the points' pixels are given back at the frames' size). Nothing here reads a ground truth.
+An input whose file exists is skipped, so an interrupted run resumes; files are written
+whole or not at all.
 """
 
 from __future__ import annotations
@@ -23,7 +26,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from fusion.self_calibration import SelfCalibrationConfig, contrast_enhanced
+from fusion.self_calibration import SelfCalibrationConfig, SquarePixels, contrast_enhanced
 from fusion.sfm_baseline import NoModel, run_sfm
 from hybrid.types import InputError
 from learned.frames import open_sequence
@@ -40,8 +43,8 @@ def map_input(path: Path, out: Path, size: tuple[int, int], length: int) -> str:
     mapped."""
     cv2.setNumThreads(1)
     seq = open_sequence(path, size)
-    if abs(seq.pixel_aspect - 1) > 1e-6:
-        raise InputError(f"{path}: frames with non-square pixels cannot be mapped for training")
+    square = SquarePixels(seq.size, seq.pixel_aspect)
+    (sx, sy), mask = square.scale, square.mask(seq.region)
     contrast = SelfCalibrationConfig()
     count = seq.num_frames
     stretch = np.full(count, -1)
@@ -51,20 +54,22 @@ def map_input(path: Path, out: Path, size: tuple[int, int], length: int) -> str:
     fx, registered = np.full(len(starts), np.nan), np.zeros(len(starts))
     for k, start in enumerate(starts):
         ids = range(start, start + length)
-        images = [contrast_enhanced(seq.frame(i), contrast) for i in ids]
+        images = [square(contrast_enhanced(seq.frame(i), contrast)) for i in ids]
         with tempfile.TemporaryDirectory() as work:
             try:
-                sfm = run_sfm(images, seq.region, Path(work), f"{seq.name} {start}")
+                sfm = run_sfm(images, mask, Path(work), f"{seq.name} {start}")
             except NoModel:
                 continue
-        fx[k], registered[k] = sfm.K[0, 0], sfm.registered.mean()
+        fx[k], registered[k] = sfm.K[0, 0] * sx, sfm.registered.mean()
         stretch[ids.start:ids.stop] = np.where(sfm.registered, k, -1)
         poses[ids.start:ids.stop] = sfm.poses
-        observed += [np.column_stack([np.full(len(o), i), o])
+        observed += [np.column_stack([np.full(len(o), i), (o[:, 0] + 0.5) * sx - 0.5,
+                                      (o[:, 1] + 0.5) * sy - 0.5, o[:, 2]])
                      for i, o in zip(ids, sfm.observations, strict=True)]
     tmp = out.with_suffix(".tmp.npz")
-    np.savez_compressed(tmp, starts=np.array(starts), fx=fx, registered=registered,
-                        stretch=stretch, poses=poses, length=length, size=np.array(size),
+    np.savez_compressed(tmp, source=str(Path(path).resolve()), size=np.array(size),
+                        fy_over_fx=square.fy_over_fx, length=length, starts=np.array(starts),
+                        fx=fx, registered=registered, stretch=stretch, poses=poses,
                         observations=np.concatenate(observed or [np.zeros((0, 4))])
                         .astype(np.float32))
     tmp.replace(out)
@@ -80,6 +85,10 @@ def map_inputs(inputs: list[Path], out: Path, size: tuple[int, int], length: int
     if length < 2 or workers < 1:
         raise InputError(f"stretches need at least 2 frames and at least 1 worker, got "
                          f"length {length} and {workers} workers")
+    names = [map_path(out, p).name for p in inputs]
+    if clash := sorted({n for n in names if names.count(n) > 1}):
+        raise InputError(f"two inputs would share the map {out / clash[0]} (maps are named "
+                         f"<folder>-<name>); map them into separate folders")
     out.mkdir(parents=True, exist_ok=True)
     done = [p for p in inputs if map_path(out, p).exists()]
     for path in done:

@@ -4,8 +4,10 @@ network and its intrinsics head (`c2d2 train-depth --maps`). No labels and no ca
 
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 import torch
@@ -16,10 +18,12 @@ from fusion.self_calibration import SelfCalibration, SelfCalibrationConfig, Stre
 from fusion.sfm_maps import map_path
 from hybrid.types import InputError
 from learned.config import DepthConfig
+from learned.flow import flows_to_sources
 from learned.frames import FrameSequence
 from learned.losses import LossTerms, view_synthesis_loss
 from learned.model import DepthModel, to_tensor
 
+log = logging.getLogger(__name__)
 Motion = tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]
 """Axis-angle and translation target -> source, then source -> target, each (B, 3)."""
 
@@ -40,8 +44,24 @@ class MapBatch:
     """Per target, (M, 3): pixel x, y and depth (map's unit) of the map points it sees."""
 
 
+class InputMap(NamedTuple):
+    """One input's map as MapTriplets uses it."""
+
+    poses: np.ndarray
+    """(N, 4, 4) camera-to-world in its stretch's model."""
+    fx: np.ndarray
+    """Per stretch, at the frames' size."""
+    fy_over_fx: float
+    stretch: np.ndarray
+    """(N,) each frame's stretch where that stretch agrees, else -1."""
+    points: list[np.ndarray]
+    """Per frame, (M, 3): x, y, depth of the map points it sees."""
+
+
 def relative_motion(poses: np.ndarray, target: int, source: int) -> Motion:
-    """Motion between two frames of camera-to-world `poses` (N, 4, 4), as a batch of one."""
+    """Motion target -> source, then source -> target, between two frames of camera-to-world
+    `poses` (N, 4, 4), as a batch of one (the target -> source transform maps points of the
+    target camera into the source camera)."""
     T = torch.tensor(np.linalg.inv(poses[source]) @ poses[target], dtype=torch.float32)[None]
     back = torch.linalg.inv(T)
     return (rotation_matrix_to_axis_angle(T[:, :3, :3]), T[:, :3, 3],
@@ -64,10 +84,17 @@ class MapTriplets:
             observations = found["observations"]  # sorted by frame
             points = np.split(observations[:, 1:], np.searchsorted(
                 observations[:, 0].astype(int), np.arange(1, seq.num_frames)))
-            self.maps.append((found["poses"], found["fx"], stretch, points))
-            self.triplets += [(k, t) for t in range(gap, seq.num_frames - gap)
-                              if stretch[t] >= 0 and stretch[t - gap] == stretch[t] ==
-                              stretch[t + gap] and len(points[t]) >= min_points]
+            self.maps.append(InputMap(found["poses"], found["fx"], float(found["fy_over_fx"]),
+                                      stretch, points))
+            mine = [(k, t) for t in range(gap, seq.num_frames - gap)
+                    if stretch[t] >= 0 and stretch[t - gap] == stretch[t] == stretch[t + gap]
+                    and len(points[t]) >= min_points]
+            if not mine:
+                log.warning("%s: no triplet in an agreeing stretch of its map; it trains "
+                            "without the maps", seq.name)
+            self.triplets += mine
+        log.info("%d map triplets from %d of %d inputs", len(self.triplets),
+                 len({k for k, _ in self.triplets}), len(sequences))
 
     def batch(self, size: int, rng: np.random.Generator, device: torch.device | str = "cpu"
               ) -> MapBatch:
@@ -76,14 +103,15 @@ class MapTriplets:
         for pick in rng.choice(len(self.triplets), size):
             k, t = self.triplets[pick]
             seq, gap = self.sequences[k], self.gaps[k]
-            poses, fx, stretch, observed = self.maps[k]
+            found = self.maps[k]
             height, width = seq.size
-            f = fx[stretch[t]]
+            f = found.fx[found.stretch[t]]
             frames.append(np.stack([seq.frame(i) for i in (t - gap, t, t + gap)]))
             regions.append(seq.region)
-            Ks.append([[f, 0, (width - 1) / 2], [0, f, (height - 1) / 2], [0, 0, 1]])
-            sides.append([relative_motion(poses, t, s) for s in (t - gap, t + gap)])
-            points.append(torch.from_numpy(observed[t]).to(device))
+            Ks.append([[f, 0, (width - 1) / 2], [0, f * found.fy_over_fx, (height - 1) / 2],
+                       [0, 0, 1]])
+            sides.append([relative_motion(found.poses, t, s) for s in (t - gap, t + gap)])
+            points.append(torch.from_numpy(found.points[t]).to(device))
         motions = [tuple(torch.cat(parts).to(device) for parts in zip(*side, strict=True))
                    for side in zip(*sides, strict=True)]
         return MapBatch(to_tensor(np.stack(frames), device),
@@ -105,28 +133,33 @@ def map_view_loss(depths: torch.Tensor, batch: MapBatch, config: DepthConfig
     unit = medians.exp()[:, None]
     sparse = torch.stack([(r - m).abs().mean() for r, m in zip(ratios, medians, strict=True)])
     motions = [(r, t * unit, r_back, t_back * unit) for r, t, r_back, t_back in batch.motions]
-    frames = batch.frames
-    terms = view_synthesis_loss(frames[:, 1], [frames[:, 0], frames[:, 2]], depths[:, 1],
-                                [depths[:, 0], depths[:, 2]], motions, batch.K, batch.regions,
-                                config)
+    target, sources = batch.frames[:, 1], [batch.frames[:, 0], batch.frames[:, 2]]
+    terms = view_synthesis_loss(target, sources, depths[:, 1], [depths[:, 0], depths[:, 2]],
+                                motions, batch.K, batch.regions, config,
+                                flows_to_sources(target, sources, config))
     return terms, sparse.mean()
 
 
 def with_map_terms(terms: LossTerms, model: DepthModel, batch: MapBatch) -> LossTerms:
     """`terms` plus the map batch's: `w_map` times the view synthesis with the maps' motion
     and K (depth network), `w_map_motion` times the motion network's and its K's distance from
-    the maps' (`map_motion_errors`), each of the model's config."""
+    the maps' (`map_motion_errors`), each of the model's config; a term whose weight is 0 is
+    not computed (and logged as 0)."""
     config = model.config
     frames = batch.frames
-    depths = model.depth(frames.flatten(0, 1)).unflatten(0, frames.shape[:2])
-    view = map_view_loss(depths, batch, config)[0].total
-    estimates, intrinsics = [], []
-    for k in (0, 2):
-        *motion, K = model.pair_motion(frames[:, 1], frames[:, k])
-        estimates.append(tuple(motion))
-        intrinsics.append(K)
-    rotation, direction, focal = map_motion_errors(estimates, torch.stack(intrinsics).mean(0),
-                                                   batch)
+    zero = torch.zeros((), device=frames.device)
+    view, rotation, direction, focal = zero, zero, zero, zero
+    if config.w_map:
+        depths = model.depth(frames.flatten(0, 1)).unflatten(0, frames.shape[:2])
+        view = map_view_loss(depths, batch, config)[0].total
+    if config.w_map_motion:
+        estimates, intrinsics = [], []
+        for k in (0, 2):
+            *motion, K = model.pair_motion(frames[:, 1], frames[:, k])
+            estimates.append(tuple(motion))
+            intrinsics.append(K)
+        rotation, direction, focal = map_motion_errors(
+            estimates, torch.stack(intrinsics).mean(0), batch)
     total = (terms.total + config.w_map * view
              + config.w_map_motion * (rotation + direction + focal))
     return replace(terms, total=total, map_view=view, map_rotation=rotation,
@@ -138,13 +171,14 @@ def map_motion_errors(estimates: list[Motion], K: torch.Tensor, batch: MapBatch
     """How far the motion network's estimates target -> previous and target -> next and its K
     (B, 3, 3) lie from the maps': the rotation's L1 distance (axis-angle, radians, as the
     chain term's), 1 - cos of the angle between the translations (the map's unit is free),
-    and |log| of the ratio of the focal lengths (fx and fy against the map's f), each a mean
+    and |log| of the ratio of the focal lengths (fx and fy against the map's), each a mean
     over the batch."""
     rotation = torch.stack([(est[0] - ref[0]).abs().sum(1).mean()
                             for est, ref in zip(estimates, batch.motions, strict=True)]).mean()
     direction = torch.stack([1 - F.cosine_similarity(est[1], ref[1], dim=1).mean()
                              for est, ref in zip(estimates, batch.motions, strict=True)]).mean()
-    focal = torch.log(torch.stack([K[:, 0, 0], K[:, 1, 1]], 1) / batch.K[:, :1, 0]).abs().mean()
+    focal = torch.log(torch.diagonal(K[:, :2, :2], dim1=1, dim2=2)
+                      / torch.diagonal(batch.K[:, :2, :2], dim1=1, dim2=2)).abs().mean()
     return rotation, direction, focal
 
 
@@ -154,11 +188,16 @@ def _load(maps: Path, seq: FrameSequence) -> np.lib.npyio.NpzFile:
         raise InputError(f"{seq.name}: no map {path}; make the maps of the training inputs "
                          f"with `c2d2 sfm-maps` into {maps}")
     found = np.load(path)
+    again = (f"delete {path} or map the inputs into a new folder with `c2d2 sfm-maps` at the "
+             f"training preset")
+    if not {"source", "size", "fy_over_fx"} <= set(found.files):
+        raise InputError(f"{path}: a map made by an earlier version of C2D2; {again}")
     (height, width), frames = found["size"], len(found["stretch"])
     if (height, width) != tuple(seq.size) or frames != seq.num_frames:
         raise InputError(f"{path}: a map of {frames} frames of {height}x{width}, but {seq.name} "
-                         f"has {seq.num_frames} of {seq.size[0]}x{seq.size[1]} here; map the "
-                         f"inputs with `c2d2 sfm-maps` at the training preset")
+                         f"has {seq.num_frames} of {seq.size[0]}x{seq.size[1]} here; {again}")
+    if str(found["source"]) != str(Path(seq.name).resolve()):
+        raise InputError(f"{path}: a map of {found['source']}, not of {seq.name}; {again}")
     return found
 
 

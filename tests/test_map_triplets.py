@@ -16,6 +16,7 @@ from kornia.geometry.conversions import axis_angle_to_rotation_matrix
 from tube_scene import FOCAL, FRAMES, HEIGHT, WIDTH, depth, pose_at, render, wall_texture
 from typer.testing import CliRunner
 
+from fusion.self_calibration import SquarePixels
 from fusion.sfm_maps import map_inputs, map_path
 from hybrid.cli import app
 from hybrid.types import InputError
@@ -119,7 +120,8 @@ def test_map_view_loss_does_not_depend_on_the_depths_unit(triplets):
 
 def test_map_motion_errors_against_hand_computed_cases(triplets):
     batch = triplets.batch(3, np.random.default_rng(2))
-    assert [float(e) for e in map_motion_errors(batch.motions, batch.K, batch)] == [0, 0, 0]
+    assert [float(e) for e in map_motion_errors(batch.motions, batch.K, batch)] == \
+        pytest.approx([0, 0, 0], abs=1e-6)
     turned = [(r + torch.tensor([0.01, -0.02, 0.0]), -t, rb, tb)
               for r, t, rb, tb in batch.motions]
     K = batch.K.clone()
@@ -153,6 +155,35 @@ def test_training_steps_on_the_maps_lower_their_terms(triplets):
     after = terms()
     for term in ("map_view", "map_rotation", "map_direction", "map_focal"):
         assert after[term] < before[term], (term, before, after)
+    # The total adds each term at its weight.
+    model.config = replace(config, w_map=2.0, w_map_motion=0.5)
+    torch.manual_seed(1)
+    with torch.no_grad():
+        both = with_map_terms(plain, model, batch)
+    motion = both.map_rotation + both.map_direction + both.map_focal
+    assert float(both.total) == pytest.approx(
+        float(plain.total.detach() + 2 * both.map_view + 0.5 * motion), rel=1e-6)
+
+
+def test_the_motion_network_is_pulled_towards_the_maps_motion_target_to_source(triplets,
+                                                                                  monkeypatch):
+    """A motion network that returns the map's own motion for (target, source) meets the maps
+    exactly; asked the other way round it would return the motion back."""
+    batch = triplets.batch(2, np.random.default_rng(4))
+    model = DepthModel(replace(CONFIG, maps="given", w_map_motion=1.0))
+    frames = batch.frames
+
+    def pair_motion(a, b):
+        side = 0 if torch.equal(b, frames[:, 0]) else 1
+        r, t, r_back, t_back = batch.motions[side]
+        motion = (r, t, r_back, t_back) if torch.equal(a, frames[:, 1]) else \
+            (r_back, t_back, r, t)
+        return (*motion, batch.K)
+
+    monkeypatch.setattr(model, "pair_motion", pair_motion)
+    terms = with_map_terms(model.loss(frames, batch.regions), model, batch)
+    assert [float(terms.map_rotation), float(terms.map_direction), float(terms.map_focal)] == \
+        pytest.approx([0, 0, 0], abs=1e-6)
 
 
 def test_train_depth_with_maps_logs_their_terms(tube, tmp_path):
@@ -191,15 +222,86 @@ def test_the_commands_take_the_maps(tube, tmp_path):
     result = runner.invoke(app, ["sfm-maps", "--data", str(folder), "--out", str(maps)])
     assert result.exit_code == 0 and "already mapped" in result.output
     assert runner.invoke(app, ["sfm-maps", "--help"]).exit_code == 0
+    result = runner.invoke(app, ["sfm-maps", "--data", str(folder), "--out", str(tmp_path),
+                                 "--preset", "huge"])
+    assert result.exit_code == 2 and result.stderr.startswith("error: ") and \
+        "huge" in result.stderr, result.output
     train = ["train-depth", "--data", str(folder), "--out", str(tmp_path / "run"), "--steps",
              "1", "--device", "cpu"]
     for extra, names in (
-            (["--preset", "huge"], ["huge"]),
             (["--maps", str(tmp_path), "--set", "w_map=1"], ["no map", "c2d2 sfm-maps"]),
             (["--maps", str(maps)], ["need w_map", "--set w_map=1"]),
             (["--set", "w_map=1"], ["weights need maps"])):
-        command = [*train, *extra] if extra[0] != "--preset" else \
-            ["sfm-maps", "--data", str(folder), "--out", str(tmp_path), *extra]
-        result = runner.invoke(app, command)
+        result = runner.invoke(app, [*train, *extra])
         assert result.exit_code == 2 and result.stderr.startswith("error: "), result.output
         assert all(name in result.stderr for name in names), result.stderr
+
+
+def write_truth_map(folder, maps, fx, length, source=None):
+    """A map file of the tube in the format of fusion.sfm_maps, from its true poses and depth:
+    stretches of `length` frames with focal lengths `fx`, 40 points a frame."""
+    rng = np.random.default_rng(0)
+    rows = []
+    for i, pose in enumerate(POSES):
+        x, y = rng.uniform(10, WIDTH - 10, 40), rng.uniform(10, HEIGHT - 10, 40)
+        z = depth(pose)[y.round().astype(int), x.round().astype(int)]
+        rows.append(np.column_stack([np.full(40, i), x, y, z]))
+    maps.mkdir(exist_ok=True)
+    np.savez(map_path(maps, folder), source=str(source or folder.resolve()),
+             size=np.array([HEIGHT, WIDTH]), fy_over_fx=1.0, length=length,
+             starts=np.arange(0, FRAMES, length), fx=np.array(fx, float),
+             registered=np.ones(len(fx)), stretch=np.arange(FRAMES) // length, poses=POSES,
+             observations=np.concatenate(rows).astype(np.float32))
+
+
+def test_only_stretches_that_agree_give_triplets(tube, tmp_path):
+    folder = tube[0]
+    seq = open_sequence(folder, (HEIGHT, WIDTH))
+    write_truth_map(folder, tmp_path / "a", [80, 82, 120], 8)  # the third is 46% off
+    triplets = MapTriplets([seq], [3], tmp_path / "a", 20)
+    assert [t for _, t in triplets.triplets] == [3, 4, 11, 12]
+    write_truth_map(folder, tmp_path / "b", [80, 82, 120], 8, source="/elsewhere")
+    with pytest.raises(InputError, match="a map of /elsewhere"):
+        MapTriplets([seq], [3], tmp_path / "b", 20)
+    (tmp_path / "c").mkdir()
+    np.savez(map_path(tmp_path / "c", folder), stretch=np.zeros(FRAMES))
+    with pytest.raises(InputError, match="earlier version"):
+        MapTriplets([seq], [3], tmp_path / "c", 20)
+
+
+def test_two_inputs_of_one_name_are_refused(tmp_path):
+    with pytest.raises(InputError, match="share the map"):
+        list(map_inputs([tmp_path / "a/train/x", tmp_path / "b/train/x"], tmp_path,
+                        (HEIGHT, WIDTH)))
+    assert not any(tmp_path.iterdir())  # refused before anything was made
+
+
+@pytest.mark.parametrize("aspect, shape, scale", [(0.8, (160, 160), (1.0, 0.8)),
+                                                  (1.25, (128, 200), (0.8, 1.0)),
+                                                  (1.0, (128, 160), (1.0, 1.0))])
+def test_square_pixels(aspect, shape, scale):
+    square = SquarePixels((HEIGHT, WIDTH), aspect)
+    assert square.shape == shape and square.scale == pytest.approx(scale)
+    assert square.fy_over_fx == pytest.approx(aspect)
+    assert square.mask(np.ones((HEIGHT, WIDTH), bool)).shape == shape
+
+
+def test_frames_with_pixels_that_are_not_square_are_mapped(tmp_path):
+    """The tube cropped to 128 x 128 (square pixels, f = 80) and taken at 128 x 160: the
+    network's frames have fx = 100 and fy = 80."""
+    folder = tmp_path / "square"
+    folder.mkdir()
+    texture = wall_texture()
+    for i, pose in enumerate(POSES):
+        cv2.imwrite(str(folder / f"{i:04d}.png"), render(pose, texture)[:, 16:144])
+    (line,) = map_inputs([folder], tmp_path / "maps", (HEIGHT, WIDTH), LENGTH)
+    assert line.endswith(f"2 of 2 stretches mapped, {FRAMES} frames placed"), line
+    found = np.load(map_path(tmp_path / "maps", folder))
+    assert float(found["fy_over_fx"]) == pytest.approx(0.8)
+    assert np.all(np.abs(found["fx"] / 100 - 1) < 0.1)
+    for k in (0, 1):  # the points' pixels are the network's: back in the render, x / 1.25 + 16
+        mine = found["observations"][(found["observations"][:, 0] // LENGTH) == k]
+        true = np.array([depth(POSES[int(i)])[round(y), round((x + 0.5) / 1.25 - 0.5 + 16)]
+                         for i, x, y, _ in mine])
+        ratio = mine[:, 3] / true
+        assert np.median(np.abs(ratio / np.median(ratio) - 1)) < 0.03
