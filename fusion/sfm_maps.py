@@ -7,11 +7,11 @@ the depth network's size with their lightness equalised, the image region as the
 one thread). Per input one file (`map_path`) holds, for each frame, the stretch it belongs to,
 its camera-to-world pose in its stretch's model (NaN where not placed) and its sparse depth
 (the model's points it observes); per stretch its first frame, fraction of frames placed
-and fx; and the input's resolved path, frame size and fy / fx (frames whose pixels are not
-square are mapped enlarged to square pixels, as the self-calibration maps them, and f and
-the points' pixels are given back at the frames' size). Nothing here reads a ground truth.
-An input whose file exists is skipped, so an interrupted run resumes; files are written
-whole or not at all.
+and fx; and the input's resolved path, `fingerprint`, frame size and fy / fx (frames whose
+pixels are not square are mapped enlarged to square pixels, as the self-calibration maps
+them, and f and the points' pixels are given back at the frames' size). Nothing here reads
+a ground truth. An input whose file exists is skipped, so an interrupted run resumes; files
+are written whole or not at all.
 """
 
 from __future__ import annotations
@@ -29,13 +29,21 @@ import numpy as np
 from fusion.self_calibration import SelfCalibrationConfig, SquarePixels, contrast_enhanced
 from fusion.sfm_baseline import NoModel, run_sfm
 from hybrid.types import InputError
-from learned.frames import open_sequence
+from learned.frames import FrameSequence, open_sequence
 
 
 def map_path(maps: Path, procedure: str | Path) -> Path:
     """The map file of an input (`<parent>-<name>.npz`, e.g. train-pink-proc_0000.npz)."""
     procedure = Path(procedure)
     return Path(maps) / f"{procedure.parent.name}-{procedure.name}.npz"
+
+
+def fingerprint(seq: FrameSequence) -> np.ndarray:
+    """Mean RGB of the first, middle and last frames at the sequence's size: what ties a map
+    to its input wherever the input lies."""
+    count = seq.num_frames
+    return np.array([seq.frame(i).mean(axis=(0, 1)) for i in (0, count // 2, count - 1)],
+                    np.float32)
 
 
 def map_input(path: Path, out: Path, size: tuple[int, int], length: int) -> str:
@@ -67,7 +75,8 @@ def map_input(path: Path, out: Path, size: tuple[int, int], length: int) -> str:
                                       (o[:, 1] + 0.5) * sy - 0.5, o[:, 2]])
                      for i, o in zip(ids, sfm.observations, strict=True)]
     tmp = out.with_suffix(".tmp.npz")
-    np.savez_compressed(tmp, source=str(Path(path).resolve()), size=np.array(size),
+    np.savez_compressed(tmp, source=str(Path(path).resolve()), fingerprint=fingerprint(seq),
+                        size=np.array(size),
                         fy_over_fx=square.fy_over_fx, length=length, starts=np.array(starts),
                         fx=fx, registered=registered, stretch=stretch, poses=poses,
                         observations=np.concatenate(observed or [np.zeros((0, 4))])

@@ -14,8 +14,8 @@ import torch
 import torch.nn.functional as F
 from kornia.geometry.conversions import rotation_matrix_to_axis_angle
 
-from fusion.self_calibration import SelfCalibration, SelfCalibrationConfig, Stretch
-from fusion.sfm_maps import map_path
+from fusion.self_calibration import SelfCalibration, SelfCalibrationConfig, SquarePixels, Stretch
+from fusion.sfm_maps import fingerprint, map_path
 from hybrid.types import InputError
 from learned.config import DepthConfig
 from learned.flow import flows_to_sources
@@ -190,14 +190,17 @@ def _load(maps: Path, seq: FrameSequence) -> np.lib.npyio.NpzFile:
     found = np.load(path)
     again = (f"delete {path} or map the inputs into a new folder with `c2d2 sfm-maps` at the "
              f"training preset")
-    if not {"source", "size", "fy_over_fx"} <= set(found.files):
+    if not {"source", "fingerprint", "size", "fy_over_fx"} <= set(found.files):
         raise InputError(f"{path}: a map made by an earlier version of C2D2; {again}")
     (height, width), frames = found["size"], len(found["stretch"])
-    if (height, width) != tuple(seq.size) or frames != seq.num_frames:
-        raise InputError(f"{path}: a map of {frames} frames of {height}x{width}, but {seq.name} "
-                         f"has {seq.num_frames} of {seq.size[0]}x{seq.size[1]} here; {again}")
-    if str(found["source"]) != str(Path(seq.name).resolve()):
-        raise InputError(f"{path}: a map of {found['source']}, not of {seq.name}; {again}")
+    if (height, width) != tuple(seq.size) or frames != seq.num_frames or not np.isclose(
+            found["fy_over_fx"], SquarePixels(seq.size, seq.pixel_aspect).fy_over_fx):
+        raise InputError(f"{path}: a map of {frames} frames of {height}x{width} (fy / fx "
+                         f"{float(found['fy_over_fx']):.3f}), but {seq.name} has "
+                         f"{seq.num_frames} of {seq.size[0]}x{seq.size[1]} here; {again}")
+    if not np.allclose(found["fingerprint"], fingerprint(seq), atol=0.5):
+        raise InputError(f"{path}: a map of other frames ({found['source']}), not of "
+                         f"{seq.name}; {again}")
     return found
 
 
@@ -208,7 +211,7 @@ def _agreeing(found: np.lib.npyio.NpzFile, seq: FrameSequence) -> np.ndarray:
                  for start, placed, f in zip(found["starts"], found["registered"], found["fx"],
                                              strict=True)]
     calibration = SelfCalibration(seq.num_frames, stretches, SelfCalibrationConfig(
-        windows=max(len(stretches), 2), length=length), seq.size, 1.0)
+        windows=max(len(stretches), 2), length=length), seq.size, float(found["fy_over_fx"]))
     agreeing = [s.start // length for s in calibration.agreeing] if calibration.K is not None \
         else []
     return np.where(np.isin(found["stretch"], agreeing), found["stretch"], -1)

@@ -17,7 +17,7 @@ from tube_scene import FOCAL, FRAMES, HEIGHT, WIDTH, depth, pose_at, render, wal
 from typer.testing import CliRunner
 
 from fusion.self_calibration import SquarePixels
-from fusion.sfm_maps import map_inputs, map_path
+from fusion.sfm_maps import fingerprint, map_inputs, map_path
 from hybrid.cli import app
 from hybrid.types import InputError
 from learned.config import DepthConfig
@@ -165,6 +165,23 @@ def test_training_steps_on_the_maps_lower_their_terms(triplets):
         float(plain.total.detach() + 2 * both.map_view + 0.5 * motion), rel=1e-6)
 
 
+@pytest.mark.parametrize("weights, idle", [({"w_map": 1.0}, "pair_motion"),
+                                           ({"w_map_motion": 1.0}, "depth")])
+def test_a_map_term_of_weight_zero_is_not_computed(triplets, monkeypatch, weights, idle):
+    batch = triplets.batch(2, np.random.default_rng(5))
+    model = DepthModel(replace(CONFIG, maps="given", **weights))
+    plain = model.loss(batch.frames, batch.regions)
+
+    def refuse(*args):
+        raise AssertionError(f"{idle} ran for a term of weight 0")
+
+    monkeypatch.setattr(model.depth if idle == "depth" else model,
+                        "forward" if idle == "depth" else idle, refuse)
+    terms = with_map_terms(plain, model, batch)
+    assert (float(terms.map_view.detach()) > 0) == ("w_map" in weights)
+    assert (float(terms.map_focal.detach()) > 0) == ("w_map_motion" in weights)
+
+
 def test_the_motion_network_is_pulled_towards_the_maps_motion_target_to_source(triplets,
                                                                                   monkeypatch):
     """A motion network that returns the map's own motion for (target, source) meets the maps
@@ -205,7 +222,8 @@ def test_bad_maps_are_named(tube, tmp_path):
     with pytest.raises(InputError, match="c2d2 sfm-maps"):
         MapTriplets([seq], [3], tmp_path, 20)
     small = open_sequence(folder, (64, 80))
-    with pytest.raises(InputError, match="24 frames of 128x160, but .* 24 of 64x80"):
+    with pytest.raises(InputError,
+                       match=r"24 frames of 128x160 \(fy / fx 1.000\), but .* 24 of 64x80"):
         MapTriplets([small], [3], maps, 20)
     with pytest.raises(InputError, match="too rarely"):
         train_depth([folder], tmp_path / "run", replace(
@@ -237,9 +255,10 @@ def test_the_commands_take_the_maps(tube, tmp_path):
         assert all(name in result.stderr for name in names), result.stderr
 
 
-def write_truth_map(folder, maps, fx, length, source=None):
+def write_truth_map(folder, maps, fx, length, other=False):
     """A map file of the tube in the format of fusion.sfm_maps, from its true poses and depth:
-    stretches of `length` frames with focal lengths `fx`, 40 points a frame."""
+    stretches of `length` frames with focal lengths `fx`, 40 points a frame (with `other`, of
+    other frames: its fingerprint brighter)."""
     rng = np.random.default_rng(0)
     rows = []
     for i, pose in enumerate(POSES):
@@ -247,7 +266,9 @@ def write_truth_map(folder, maps, fx, length, source=None):
         z = depth(pose)[y.round().astype(int), x.round().astype(int)]
         rows.append(np.column_stack([np.full(40, i), x, y, z]))
     maps.mkdir(exist_ok=True)
-    np.savez(map_path(maps, folder), source=str(source or folder.resolve()),
+    seq = open_sequence(folder, (HEIGHT, WIDTH))
+    np.savez(map_path(maps, folder), source=str(folder.resolve()),
+             fingerprint=fingerprint(seq) + (100 if other else 0),
              size=np.array([HEIGHT, WIDTH]), fy_over_fx=1.0, length=length,
              starts=np.arange(0, FRAMES, length), fx=np.array(fx, float),
              registered=np.ones(len(fx)), stretch=np.arange(FRAMES) // length, poses=POSES,
@@ -260,8 +281,8 @@ def test_only_stretches_that_agree_give_triplets(tube, tmp_path):
     write_truth_map(folder, tmp_path / "a", [80, 82, 120], 8)  # the third is 46% off
     triplets = MapTriplets([seq], [3], tmp_path / "a", 20)
     assert [t for _, t in triplets.triplets] == [3, 4, 11, 12]
-    write_truth_map(folder, tmp_path / "b", [80, 82, 120], 8, source="/elsewhere")
-    with pytest.raises(InputError, match="a map of /elsewhere"):
+    write_truth_map(folder, tmp_path / "b", [80, 82, 120], 8, other=True)
+    with pytest.raises(InputError, match="a map of other frames"):
         MapTriplets([seq], [3], tmp_path / "b", 20)
     (tmp_path / "c").mkdir()
     np.savez(map_path(tmp_path / "c", folder), stretch=np.zeros(FRAMES))
