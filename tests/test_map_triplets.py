@@ -307,22 +307,27 @@ def test_square_pixels(aspect, shape, scale):
     assert square.mask(np.ones((HEIGHT, WIDTH), bool)).shape == shape
 
 
-def test_frames_with_pixels_that_are_not_square_are_mapped(tmp_path):
-    """The tube cropped to 128 x 128 (square pixels, f = 80) and taken at 128 x 160: the
-    network's frames have fx = 100 and fy = 80."""
-    folder = tmp_path / "square"
+@pytest.mark.parametrize("rows, columns", [((0, HEIGHT), (16, 144)), ((14, 114), (0, WIDTH))],
+                         ids=["square-crop", "wide-crop"])
+def test_frames_with_pixels_that_are_not_square_are_mapped(tmp_path, rows, columns):
+    """The tube cropped (square pixels, f = 80) and taken at 128 x 160, which stretches the
+    crop's axes by kx and ky: the network's frames have fx = 80 kx and fy = 80 ky."""
+    (r0, r1), (c0, c1) = rows, columns
+    kx, ky = WIDTH / (c1 - c0), HEIGHT / (r1 - r0)
+    folder = tmp_path / "crop"
     folder.mkdir()
     texture = wall_texture()
     for i, pose in enumerate(POSES):
-        cv2.imwrite(str(folder / f"{i:04d}.png"), render(pose, texture)[:, 16:144])
+        cv2.imwrite(str(folder / f"{i:04d}.png"), render(pose, texture)[r0:r1, c0:c1])
     (line,) = map_inputs([folder], tmp_path / "maps", (HEIGHT, WIDTH), LENGTH)
     assert line.endswith(f"2 of 2 stretches mapped, {FRAMES} frames placed"), line
     found = np.load(map_path(tmp_path / "maps", folder))
-    assert float(found["fy_over_fx"]) == pytest.approx(0.8)
-    assert np.all(np.abs(found["fx"] / 100 - 1) < 0.1)
-    for k in (0, 1):  # the points' pixels are the network's: back in the render, x / 1.25 + 16
+    assert float(found["fy_over_fx"]) == pytest.approx(ky / kx, rel=0.01)
+    assert np.all(np.abs(found["fx"] / (FOCAL * kx) - 1) < 0.1)
+    for k in (0, 1):  # the points' pixels are the network's: back in the render by 1 / k
         mine = found["observations"][(found["observations"][:, 0] // LENGTH) == k]
-        true = np.array([depth(POSES[int(i)])[round(y), round((x + 0.5) / 1.25 - 0.5 + 16)]
+        true = np.array([depth(POSES[int(i)])[round((y + 0.5) / ky - 0.5 + r0),
+                                              round((x + 0.5) / kx - 0.5 + c0)]
                          for i, x, y, _ in mine])
         ratio = mine[:, 3] / true
         assert np.median(np.abs(ratio / np.median(ratio) - 1)) < 0.03
