@@ -59,7 +59,13 @@ from learned.checkpoint import export_weights, save_checkpoint
 from learned.config import DepthConfig
 from learned.frames import open_sequence
 from learned.losses import view_synthesis_loss
-from learned.map_triplets import MapBatch, MapTriplets, map_view_loss, relative_motion
+from learned.map_triplets import (
+    MapBatch,
+    MapTriplets,
+    map_view_loss,
+    relative_motion,
+    stack_motions,
+)
 from learned.model import load_depth_model, to_tensor
 from learned.nets import DepthNet
 from learned.train import TripletSampler, expand_inputs, validate
@@ -84,10 +90,8 @@ def truth_batch(sampler: TripletSampler, size: int, rng: np.random.Generator) ->
     return {"frames": to_tensor(np.stack([np.stack([seq.frame(i) for i in ids])
                                           for seq, ids in picks])),
             "K": torch.tensor(np.stack([seq.camera.K for seq, _ in picks]), dtype=torch.float32),
-            "motions": [tuple(torch.cat(parts) for parts in zip(*side, strict=True))
-                        for side in zip(*[[relative_motion(seq.poses, ids[1], s)
-                                           for s in ids[::2]] for seq, ids in picks],
-                                        strict=True)],
+            "motions": stack_motions([[relative_motion(seq.poses, ids[1], s)
+                                       for s in ids[::2]] for seq, ids in picks]),
             "depths": torch.from_numpy(np.stack([np.stack([seq.depth(i) for i in ids])
                                                  for seq, ids in picks])).float()}
 

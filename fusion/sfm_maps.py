@@ -32,10 +32,10 @@ from hybrid.types import InputError
 from learned.frames import FrameSequence, open_sequence
 
 
-def map_path(maps: Path, procedure: str | Path) -> Path:
+def map_path(maps: Path, source: str | Path) -> Path:
     """The map file of an input (`<parent>-<name>.npz`, e.g. train-pink-proc_0000.npz)."""
-    procedure = Path(procedure)
-    return Path(maps) / f"{procedure.parent.name}-{procedure.name}.npz"
+    source = Path(source)
+    return Path(maps) / f"{source.parent.name}-{source.name}.npz"
 
 
 def fingerprint(seq: FrameSequence) -> np.ndarray:

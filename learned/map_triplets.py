@@ -68,6 +68,13 @@ def relative_motion(poses: np.ndarray, target: int, source: int) -> Motion:
             rotation_matrix_to_axis_angle(back[:, :3, :3]), back[:, :3, 3])
 
 
+def stack_motions(per_triplet: list[list[Motion]]) -> list[Motion]:
+    """Per side (target -> previous, target -> next), the batch of the triplets' motions, from
+    each triplet's list of two motions (relative_motion's batches of one)."""
+    return [tuple(torch.cat(parts) for parts in zip(*side, strict=True))
+            for side in zip(*per_triplet, strict=True)]
+
+
 class MapTriplets:
     """Triplets at the sampler's gaps whose three frames were placed in one stretch of their
     input's map, that stretch's focal length agreeing with the input's other stretches (the
@@ -112,8 +119,7 @@ class MapTriplets:
                        [0, 0, 1]])
             sides.append([relative_motion(found.poses, t, s) for s in (t - gap, t + gap)])
             points.append(torch.from_numpy(found.points[t]).to(device))
-        motions = [tuple(torch.cat(parts).to(device) for parts in zip(*side, strict=True))
-                   for side in zip(*sides, strict=True)]
+        motions = [tuple(part.to(device) for part in side) for side in stack_motions(sides)]
         return MapBatch(to_tensor(np.stack(frames), device),
                         torch.from_numpy(np.stack(regions))[:, None].to(device),
                         torch.tensor(Ks, dtype=torch.float32, device=device), motions, points)
@@ -153,13 +159,7 @@ def with_map_terms(terms: LossTerms, model: DepthModel, batch: MapBatch) -> Loss
         depths = model.depth(frames.flatten(0, 1)).unflatten(0, frames.shape[:2])
         view = map_view_loss(depths, batch, config)[0].total
     if config.w_map_motion:
-        estimates, intrinsics = [], []
-        for k in (0, 2):
-            *motion, K = model.pair_motion(frames[:, 1], frames[:, k])
-            estimates.append(tuple(motion))
-            intrinsics.append(K)
-        rotation, direction, focal = map_motion_errors(
-            estimates, torch.stack(intrinsics).mean(0), batch)
+        rotation, direction, focal = map_motion_errors(*model.triplet_motion(frames), batch)
     total = (terms.total + config.w_map * view
              + config.w_map_motion * (rotation + direction + focal))
     return replace(terms, total=total, map_view=view, map_rotation=rotation,

@@ -50,6 +50,18 @@ class DepthModel(nn.Module):
         backward = torch.linalg.inv(transform_from(r_ba, t_ba).double())
         return mean_transform(forward, backward), K
 
+    def triplet_motion(self, frames: torch.Tensor
+                       ) -> tuple[list[tuple[torch.Tensor, ...]], torch.Tensor]:
+        """Of triplets frames (B, >= 3, 3, H, W) (previous, target, next, ...): the motions
+        target -> previous and target -> next (each as pair_motion gives it: axis-angle and
+        translation there and back) and K averaged over both pairs."""
+        motions, intrinsics = [], []
+        for k in (0, 2):
+            *motion, K = self.pair_motion(frames[:, 1], frames[:, k])
+            motions.append(tuple(motion))
+            intrinsics.append(K)
+        return motions, torch.stack(intrinsics).mean(0)
+
     def loss(self, frames: torch.Tensor, region: torch.Tensor,
              depths: torch.Tensor | None = None, chain_target: torch.Tensor | None = None
              ) -> LossTerms:
@@ -64,12 +76,7 @@ class DepthModel(nn.Module):
         if depths is None:
             depths = self.depth(frames[:, :3].flatten(0, 1)).unflatten(0, (batch, 3))
         target = frames[:, 1]
-        motions, intrinsics = [], []
-        for k in (0, 2):
-            r_ts, t_ts, r_st, t_st, K = self.pair_motion(target, frames[:, k])
-            motions.append((r_ts, t_ts, r_st, t_st))
-            intrinsics.append(K)
-        K = torch.stack(intrinsics).mean(0)
+        motions, K = self.triplet_motion(frames)
         sources = [frames[:, 0], frames[:, 2]]
         terms = view_synthesis_loss(target, sources, depths[:, 1], [depths[:, 0], depths[:, 2]],
                                     motions, K, region, self.config,
