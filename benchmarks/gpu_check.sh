@@ -3,8 +3,9 @@
 # each of the paper preset, the fast preset, the shipped fine-tune's terms (chain and shading
 # prior on K) and those with the zoom term. Usage: gpu_check.sh FRAMES_DIR OUT_DIR (a folder
 # of 30-fps frames; each run's metrics.jsonl, whose `seconds` give the speed, lands in OUT_DIR).
-# Needs only what the learned branch imports (no Open3D, GTSAM or pycolmap): the coverage
-# networks' GPU test, which imports the pipeline, is left out.
+# Needs what the learned branch imports, pycolmap included (the maps of `train-depth --maps`),
+# but not Open3D or GTSAM: the coverage networks' GPU test, which imports the pipeline, is
+# left out.
 set -uo pipefail
 frames=$1 out=$2
 mkdir -p "$out"
