@@ -37,6 +37,11 @@ Contrast = Annotated[float | None, typer.Option(
     min=0, help="With --self-calibrate: the clip limit of the CLAHE on each frame's lightness "
     "before SIFT (0: the frames as they are; default: fusion.self_calibration's, 3).")]
 
+PipelineDepth = Annotated[Path | None, typer.Option(help="Depth model (default: shipped).")]
+PipelineCoverage = Annotated[Path | None, typer.Option(
+    help="Coverage model, e.g. one adapted with `c2d2 adapt` (default: shipped); it must read "
+    "the depth model's output.")]
+
 app = typer.Typer(help="C2D2: detect deficient coverage in colonoscopy video.",
                   no_args_is_help=True, add_completion=False, pretty_exceptions_enable=False)
 
@@ -160,11 +165,8 @@ def run(
                                               "missing.")] = None,
     mask: Annotated[Path | None, typer.Option(help="Image-region mask (white = image) in the "
                                               "video's size; detected if omitted.")] = None,
-    depth_checkpoint: Annotated[Path | None, typer.Option(help="Depth model (default: "
-                                                          "shipped).")] = None,
-    coverage_checkpoint: Annotated[Path | None, typer.Option(help="Coverage model, e.g. one "
-                                                             "adapted with `c2d2 adapt` "
-                                                             "(default: shipped).")] = None,
+    depth_checkpoint: PipelineDepth = None,
+    coverage_checkpoint: PipelineCoverage = None,
     insertion: Annotated[bool, typer.Option(help="The video is an insertion, not a withdrawal "
                                             "(the look-ahead band lies where the camera is "
                                             "going; both branches).")] = False,
@@ -227,6 +229,8 @@ def batch(
 def eval_pipeline(
     data: Annotated[list[Path], typer.Option(help="Simulated procedures, or folders of them.")],
     out: Annotated[Path, typer.Option(help="Work folders per procedure and eval.json.")],
+    depth_checkpoint: PipelineDepth = None,
+    coverage_checkpoint: PipelineCoverage = None,
     device: Device = "auto",
 ):
     """MAE of learned, geometric and combined coverage against the truth, and the branches'
@@ -237,7 +241,8 @@ def eval_pipeline(
     from learned.device import pick_device
     from learned.train import expand_inputs
 
-    config = RunConfig()
+    config = RunConfig(depth_checkpoint=_opt(depth_checkpoint),
+                       coverage_checkpoint=_opt(coverage_checkpoint))
     models = Models.load(config, pick_device(device))
     procedures = [Procedure.open(p) for p in expand_inputs(data)]
     summary = evaluate_pipeline(procedures, out, config, models, echo=typer.echo)

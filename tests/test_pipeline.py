@@ -365,6 +365,15 @@ def test_cli_refuses_a_partial_run_made_with_other_model_files(pipeline_run, pro
     assert snapshot(work) == kept
 
 
+@pytest.mark.parametrize("option", ["--depth-checkpoint", "--coverage-checkpoint"])
+def test_eval_loads_the_models_it_is_given(option, procedure, tmp_path):
+    """`c2d2 eval` runs the pipeline with the model files named, not the shipped ones."""
+    missing = tmp_path / "no-model.safetensors"
+    result = runner.invoke(app, ["eval", "--data", str(procedure.path), "--out",
+                                 str(tmp_path / "eval"), option, str(missing)])
+    assert_input_error(result, str(missing))
+
+
 # --- batch -----------------------------------------------------------------------------------
 
 
