@@ -120,9 +120,10 @@ def evaluate_pipeline(procedures: list[Procedure], out: Path, config: RunConfig,
              f"{[round(r['learned'], 2) for r in table]} geometric "
              f"{[None if r['geometric'] is None else round(r['geometric'], 2) for r in table]}")
     summary = summarise(rows)
-    W.write_json(out / "eval.json", {"summary": summary, "segments": rows})
+    result = {"summary": summary, "checkpoints": models.tags, "segments": rows}
+    W.write_json(out / "eval.json", result)
     _scatter(rows, out / "eval_scatter.png")
-    return {"summary": summary, "segments": rows}
+    return result
 
 
 def _scatter(rows: list[dict], path: Path) -> None:

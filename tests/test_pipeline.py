@@ -365,6 +365,25 @@ def test_cli_refuses_a_partial_run_made_with_other_model_files(pipeline_run, pro
     assert snapshot(work) == kept
 
 
+def test_eval_scores_the_run_and_names_its_models(pipeline_run, procedure, tmp_path):
+    """`c2d2 eval` over a finished run (copied where eval keeps it, so every stage is
+    skipped): its segments are the run's, scored against the truth, and eval.json names the
+    model files."""
+    out, _ = pipeline_run
+    evaluation = tmp_path / "eval"
+    shutil.copytree(out, evaluation / f"{procedure.path.parent.name}-{procedure.path.name}")
+    result = runner.invoke(app, ["eval", "--data", str(procedure.path), "--out", str(evaluation)])
+    assert result.exit_code == 0, result.output
+    saved = json.loads((evaluation / "eval.json").read_text())
+    assert saved["checkpoints"] == json.loads((out / W.CONFIG).read_text())["checkpoints"]
+    table = json.loads((out / W.COVERAGE_JSON).read_text())["segments"]
+    truth = procedure.coverage.segment_labels()
+    assert [r["learned"] for r in saved["segments"]] == [r["learned"] for r in table]
+    assert [r["truth"] for r in saved["segments"]] == pytest.approx(truth)
+    learned_mae = np.mean([abs(r["learned"] - t) for r, t in zip(table, truth, strict=True)])
+    assert saved["summary"]["learned"]["mae"] == pytest.approx(learned_mae)
+
+
 @pytest.mark.parametrize("option", ["--depth-checkpoint", "--coverage-checkpoint"])
 def test_eval_loads_the_models_it_is_given(option, procedure, tmp_path):
     """`c2d2 eval` runs the pipeline with the model files named, not the shipped ones."""
