@@ -4,8 +4,9 @@ For each procedure of a finished `c2d2 eval` (its work folders and eval.json), a
 work folder gets one of two nudges, and the stages after it run again:
   - `posegraph`: one float16 step up on a random 1% of the depth pixels (the depth is stored
     as float16); pose graph, reconstruction and geometric coverage rerun;
-  - `reconstruction`: the smoothed poses' translations moved by 1e-9 (cm); reconstruction
-    and geometric coverage rerun.
+  - `reconstruction`: the smoothed poses' translations moved by --pose-nudge (in the
+    network's unit, about 20 cm; normal noise per axis); reconstruction and geometric
+    coverage rerun.
 Prints, per seed, the geometric MAE against the truth, the 3-class agreement with the learned
 branch, and the largest change of one segment's geometric coverage.
 
@@ -30,7 +31,7 @@ DOWNSTREAM = [W.RECONSTRUCTION, W.MESH, W.LUMEN, W.GEOMETRIC, W.REPORT, W.COVERA
               W.COVERAGE_CSV, W.GEOMETRIC_ERROR, W.MAPS]
 
 
-def nudge(work: Path, stage: str, rng: np.random.Generator) -> None:
+def nudge(work: Path, stage: str, rng: np.random.Generator, pose_nudge: float) -> None:
     """Apply the stage's nudge in `work` and delete the outputs that must be made again."""
     if stage == "posegraph":
         depth = np.load(work / W.DEPTH)
@@ -40,7 +41,7 @@ def nudge(work: Path, stage: str, rng: np.random.Generator) -> None:
         np.save(work / W.DEPTH, np.where(rng.random(depth.shape) < 0.01, up, depth))
     else:
         poses = np.load(work / W.POSES)
-        poses[:, :3, 3] += 1e-9 * rng.standard_normal(poses[:, :3, 3].shape)
+        poses[:, :3, 3] += pose_nudge * rng.standard_normal(poses[:, :3, 3].shape)
         np.save(work / W.POSES, poses)
     for name in RERUN[stage] + DOWNSTREAM:
         path = work / name
@@ -52,9 +53,13 @@ def main() -> None:
     parser.add_argument("--eval", type=Path, required=True, help="output folder of c2d2 eval")
     parser.add_argument("--stage", choices=sorted(RERUN), default="posegraph")
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1])
+    parser.add_argument("--pose-nudge", type=float, default=1e-9,
+                        help="with --stage reconstruction: the translations' noise")
+    parser.add_argument("--procedures", nargs="*", help="only these (e.g. proc_0015)")
     parser.add_argument("--out", type=Path, required=True, help="scratch folder for the copies")
     args = parser.parse_args()
-    rows = json.loads((args.eval / "eval.json").read_text())["segments"]
+    rows = [r for r in json.loads((args.eval / "eval.json").read_text())["segments"]
+            if not args.procedures or Path(r["procedure"]).name in args.procedures]
     models = Models.load(RunConfig())
     base = summarise(rows)
     print(f"as evaluated: geometric MAE {base['geometric']['mae']:.4f}, agreement "
@@ -67,7 +72,7 @@ def main() -> None:
             work = args.out / f"{src.name}-{args.stage}-{seed}"
             shutil.rmtree(work, ignore_errors=True)
             shutil.copytree(src, work)
-            nudge(work, args.stage, rng)
+            nudge(work, args.stage, rng, args.pose_nudge)
             run_video(Path(procedure), work, RunConfig(), models, progress=False,
                       echo=lambda _: None)
             table = json.loads((work / W.COVERAGE_JSON).read_text())["segments"]
