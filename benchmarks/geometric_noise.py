@@ -4,11 +4,13 @@ For each procedure of a finished `c2d2 eval` (its work folders and eval.json), a
 work folder gets one of two nudges, and the stages after it run again:
   - `posegraph`: one float16 step up on a random 1% of the depth pixels (the depth is stored
     as float16); pose graph, reconstruction and geometric coverage rerun;
-  - `reconstruction`: the smoothed poses' translations moved by --pose-nudge (in the
-    network's unit, about 20 cm; normal noise per axis); reconstruction and geometric
-    coverage rerun.
-Prints, per seed, the geometric MAE against the truth, the 3-class agreement with the learned
-branch, and the largest change of one segment's geometric coverage.
+  - `reconstruction`: the smoothed poses' translations moved by --pose-nudge (normal noise
+    per axis, in the network's unit: reconstruction.json's scale_cm_per_unit gives it in cm,
+    22.7 for data/heldout proc_0015); reconstruction and geometric coverage rerun.
+Each procedure's nudge is drawn from (seed, procedure name), so --procedures reruns a subset
+as the whole run nudged it. Prints, per seed, the geometric MAE against the truth, the
+3-class agreement with the learned branch, the largest change of one segment's geometric
+coverage (and which), and the largest move of a smoothed camera position in cm.
 
     python benchmarks/geometric_noise.py --eval data/eval-heldout-shipped --stage posegraph \
         --seeds 0 1 --out /tmp/noise
@@ -18,6 +20,7 @@ from __future__ import annotations
 import argparse
 import json
 import shutil
+import zlib
 from pathlib import Path
 
 import numpy as np
@@ -65,13 +68,13 @@ def main() -> None:
     print(f"as evaluated: geometric MAE {base['geometric']['mae']:.4f}, agreement "
           f"{base['branch_agreement']:.3f}")
     for seed in args.seeds:
-        rng = np.random.default_rng(seed)
-        nudged = []
+        nudged, pose_moves = [], []
         for procedure in dict.fromkeys(r["procedure"] for r in rows):
             src = args.eval / f"{Path(procedure).parent.name}-{Path(procedure).name}"
             work = args.out / f"{src.name}-{args.stage}-{seed}"
             shutil.rmtree(work, ignore_errors=True)
             shutil.copytree(src, work)
+            rng = np.random.default_rng([seed, zlib.crc32(src.name.encode())])
             nudge(work, args.stage, rng, args.pose_nudge)
             run_video(Path(procedure), work, RunConfig(), models, progress=False,
                       echo=lambda _: None)
@@ -79,12 +82,18 @@ def main() -> None:
             mine = [r for r in rows if r["procedure"] == procedure]
             nudged += [{**r, "geometric": t["geometric"], "combined": t["coverage"]}
                        for r, t in zip(mine, table, strict=True)]
+            cm = json.loads((src / W.RECONSTRUCTION).read_text())["scale_cm_per_unit"]
+            step = np.load(work / W.POSES)[:, :3, 3] - np.load(src / W.POSES)[:, :3, 3]
+            pose_moves.append(cm * np.linalg.norm(step, axis=1).max())
         summary = summarise(nudged)
-        moved = [abs(a["geometric"] - b["geometric"]) for a, b in zip(rows, nudged, strict=True)
+        moved = [(abs(a["geometric"] - b["geometric"]), f"{Path(a['procedure']).name} "
+                  f"segment {a['segment']}: {a['geometric']:.3f} -> {b['geometric']:.3f}")
+                 for a, b in zip(rows, nudged, strict=True)
                  if a["geometric"] is not None and b["geometric"] is not None]
         print(f"seed {seed}: geometric MAE {summary['geometric']['mae']:.4f}, agreement "
-              f"{summary['branch_agreement']:.3f}, largest move {max(moved):.3f}, median "
-              f"{np.median(moved):.4f}")
+              f"{summary['branch_agreement']:.3f}, segment moves median "
+              f"{np.median([m for m, _ in moved]):.4f}, largest {max(moved)[0]:.3f} "
+              f"({max(moved)[1]}); camera moved at most {max(pose_moves):.3f} cm")
 
 
 if __name__ == "__main__":
