@@ -7,10 +7,13 @@ work folder gets one of two nudges, and the stages after it run again:
   - `reconstruction`: the smoothed poses' translations moved by --pose-nudge (normal noise
     per axis, in the network's unit: reconstruction.json's scale_cm_per_unit gives it in cm,
     22.7 for data/heldout proc_0015); reconstruction and geometric coverage rerun.
-Each procedure's nudge is drawn from (seed, procedure name), so --procedures reruns a subset
-as the whole run nudged it. Prints, per seed, the geometric MAE against the truth, the
-3-class agreement with the learned branch, the largest change of one segment's geometric
-coverage (and which), and the largest move of a smoothed camera position in cm.
+The stages that rerun take their settings from the current code. They first rerun without a
+nudge (so a change to those settings is measured too), and the nudged runs are compared with
+that. Each procedure's nudge is drawn from (seed, procedure name), so --procedures reruns a
+subset as the whole run nudged it. Prints the eval's and the unnudged rerun's geometric MAE
+and agreement, then, per seed, the geometric MAE against the truth, the 3-class agreement
+with the learned branch, the largest change of one segment's geometric coverage (and which),
+and the largest move of a smoothed camera position in cm.
 
     python benchmarks/geometric_noise.py --eval data/eval-heldout-shipped --stage posegraph \
         --seeds 0 1 --out /tmp/noise
@@ -21,6 +24,7 @@ import argparse
 import json
 import shutil
 import zlib
+from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
@@ -30,25 +34,58 @@ from hybrid.evaluate import summarise
 from hybrid.pipeline import Models, RunConfig, run_video
 
 RERUN = {"posegraph": [W.POSES, W.POSES_RAW, W.ODOMETRY], "reconstruction": []}
+SETTINGS = {"posegraph": ["odometry", "posegraph", "reconstruction", "geometric"],
+            "reconstruction": ["reconstruction", "geometric"]}
+"""The run's settings of the stages that rerun: taken from the current code, so that a change
+to them is measured on the eval's earlier stages (the rest must match, or run_video refuses)."""
 DOWNSTREAM = [W.RECONSTRUCTION, W.MESH, W.LUMEN, W.GEOMETRIC, W.REPORT, W.COVERAGE_JSON,
               W.COVERAGE_CSV, W.GEOMETRIC_ERROR, W.MAPS]
 
 
-def nudge(work: Path, stage: str, rng: np.random.Generator, pose_nudge: float) -> None:
-    """Apply the stage's nudge in `work` and delete the outputs that must be made again."""
-    if stage == "posegraph":
+def nudge(work: Path, stage: str, rng: np.random.Generator | None, pose_nudge: float) -> None:
+    """Apply the stage's nudge in `work` (none when rng is None), take the current settings of
+    the stages that rerun, and delete the outputs that must be made again."""
+    if rng is not None and stage == "posegraph":
         depth = np.load(work / W.DEPTH)
         if depth.dtype != np.float16:
             raise SystemExit(f"{work / W.DEPTH}: expected float16 depth, found {depth.dtype}")
         up = np.nextafter(depth, np.float16(np.inf))
         np.save(work / W.DEPTH, np.where(rng.random(depth.shape) < 0.01, up, depth))
-    else:
+    elif rng is not None:
         poses = np.load(work / W.POSES)
         poses[:, :3, 3] += pose_nudge * rng.standard_normal(poses[:, :3, 3].shape)
         np.save(work / W.POSES, poses)
+    saved = json.loads((work / W.CONFIG).read_text())
+    current = json.loads(json.dumps(asdict(RunConfig())))
+    saved["config"].update({key: current[key] for key in SETTINGS[stage]})
+    W.write_json(work / W.CONFIG, saved)
     for name in RERUN[stage] + DOWNSTREAM:
         path = work / name
         shutil.rmtree(path) if path.is_dir() else path.unlink(missing_ok=True)
+
+
+def rerun(args: argparse.Namespace, rows: list[dict], models: Models, seed: int | None
+          ) -> tuple[list[dict], float]:
+    """The eval's rows with the geometric coverage of a nudged rerun (seed None: not nudged),
+    and the largest move of a smoothed camera position in cm."""
+    nudged, pose_moves = [], []
+    for procedure in dict.fromkeys(r["procedure"] for r in rows):
+        src = args.eval / f"{Path(procedure).parent.name}-{Path(procedure).name}"
+        work = args.out / f"{src.name}-{args.stage}-{seed}"
+        shutil.rmtree(work, ignore_errors=True)
+        shutil.copytree(src, work)
+        rng = None if seed is None else np.random.default_rng([seed, zlib.crc32(src.name.encode())])
+        nudge(work, args.stage, rng, args.pose_nudge)
+        run_video(Path(procedure), work, RunConfig(), models, progress=False,
+                  echo=lambda _: None)
+        table = json.loads((work / W.COVERAGE_JSON).read_text())["segments"]
+        mine = [r for r in rows if r["procedure"] == procedure]
+        nudged += [{**r, "geometric": t["geometric"], "combined": t["coverage"]}
+                   for r, t in zip(mine, table, strict=True)]
+        cm = json.loads((src / W.RECONSTRUCTION).read_text())["scale_cm_per_unit"]
+        step = np.load(work / W.POSES)[:, :3, 3] - np.load(src / W.POSES)[:, :3, 3]
+        pose_moves.append(cm * np.linalg.norm(step, axis=1).max())
+    return nudged, max(pose_moves)
 
 
 def main() -> None:
@@ -64,27 +101,14 @@ def main() -> None:
     rows = [r for r in json.loads((args.eval / "eval.json").read_text())["segments"]
             if not args.procedures or Path(r["procedure"]).name in args.procedures]
     models = Models.load(RunConfig())
-    base = summarise(rows)
-    print(f"as evaluated: geometric MAE {base['geometric']['mae']:.4f}, agreement "
-          f"{base['branch_agreement']:.3f}")
+    for label, table in (("as evaluated", rows), ("rerun, not nudged", None)):
+        if table is None:
+            rows = table = rerun(args, rows, models, None)[0]
+        summary = summarise(table)
+        print(f"{label}: geometric MAE {summary['geometric']['mae']:.4f}, agreement "
+              f"{summary['branch_agreement']:.3f}")
     for seed in args.seeds:
-        nudged, pose_moves = [], []
-        for procedure in dict.fromkeys(r["procedure"] for r in rows):
-            src = args.eval / f"{Path(procedure).parent.name}-{Path(procedure).name}"
-            work = args.out / f"{src.name}-{args.stage}-{seed}"
-            shutil.rmtree(work, ignore_errors=True)
-            shutil.copytree(src, work)
-            rng = np.random.default_rng([seed, zlib.crc32(src.name.encode())])
-            nudge(work, args.stage, rng, args.pose_nudge)
-            run_video(Path(procedure), work, RunConfig(), models, progress=False,
-                      echo=lambda _: None)
-            table = json.loads((work / W.COVERAGE_JSON).read_text())["segments"]
-            mine = [r for r in rows if r["procedure"] == procedure]
-            nudged += [{**r, "geometric": t["geometric"], "combined": t["coverage"]}
-                       for r, t in zip(mine, table, strict=True)]
-            cm = json.loads((src / W.RECONSTRUCTION).read_text())["scale_cm_per_unit"]
-            step = np.load(work / W.POSES)[:, :3, 3] - np.load(src / W.POSES)[:, :3, 3]
-            pose_moves.append(cm * np.linalg.norm(step, axis=1).max())
+        nudged, pose_move = rerun(args, rows, models, seed)
         summary = summarise(nudged)
         moved = [(abs(a["geometric"] - b["geometric"]), f"{Path(a['procedure']).name} "
                   f"segment {a['segment']}: {a['geometric']:.3f} -> {b['geometric']:.3f}")
@@ -93,7 +117,7 @@ def main() -> None:
         print(f"seed {seed}: geometric MAE {summary['geometric']['mae']:.4f}, agreement "
               f"{summary['branch_agreement']:.3f}, segment moves median "
               f"{np.median([m for m, _ in moved]):.4f}, largest {max(moved)[0]:.3f} "
-              f"({max(moved)[1]}); camera moved at most {max(pose_moves):.3f} cm")
+              f"({max(moved)[1]}); camera moved at most {pose_move:.3f} cm")
 
 
 if __name__ == "__main__":

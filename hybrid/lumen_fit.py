@@ -9,15 +9,18 @@ back-projected depth) in one unit, and returns a `FittedLumen` parametrised by a
    where the camera ends towards where it started: towards the cecum, where the look-ahead Δ1
    of the coverage definition points.
    The path is continued straight on beyond its deep end, to cover the look-ahead band, and a
-   little beyond its other end; so is the fitted centreline where the surface ends.
+   little beyond its other end; so is the fitted centreline where the surface ends, and at
+   least past the cameras beyond it, so that each camera has its own ℓ.
 2. The surface is thinned to one point per small cube (`thinning`), so that each part of the
    wall counts once however often and closely the video saw it.
 3. Cross-sections: at each station, the surface points in a slab one spacing thick normal to
    the path are projected into its plane and fitted with a circle (algebraic fit, outliers
-   beyond 3 MADs trimmed); a section whose points cover less than half of the circle is
-   skipped and filled in from its neighbours.
-4. The centres and radii are smoothed along the stations; the path is replaced by the fitted
-   centreline and steps 3-4 run again.
+   beyond 3 MADs trimmed); a section whose points cover less than half of the circle, or
+   whose circle does not enclose the station (inside the lumen), is skipped and filled in
+   from its neighbours.
+4. The centres and radii go through a running median along the stations (one bad section,
+   often at the ragged end of the surface, is outvoted), then are smoothed; the path is
+   replaced by the fitted centreline and steps 3-4 run again.
 Cube, spacing, slab and reach scale with a first radius estimate (median distance from the
 surface to the camera path), so the fit works in any unit, e.g. before the metric scale is
 known.
@@ -31,7 +34,7 @@ from pathlib import Path
 
 import numpy as np
 import open3d as o3d
-from scipy.ndimage import gaussian_filter1d
+from scipy.ndimage import gaussian_filter1d, median_filter
 from scipy.spatial import cKDTree
 
 from hybrid.types import InputError, check_poses
@@ -48,6 +51,10 @@ class LumenFitConfig:
     """Surface points farther than this from a station are ignored, × r0."""
     path_smoothing_s: float = 1.0
     """Gaussian smoothing of the camera centres over time, in seconds."""
+    median_stations: int = 5
+    """Running median of the fitted centres and radii over this many stations, before the
+    smoothing: one bad cross-section (a piece of a fold, the ragged end of the surface) is
+    outvoted by its neighbours instead of pulling the fit and, at an end, the extension."""
     smoothing_stations: float = 2.0
     """Gaussian smoothing of the fitted centres and radii, in stations."""
     min_points: int = 30
@@ -86,6 +93,13 @@ class FittedLumen:
 
     points: np.ndarray
     radius: np.ndarray
+    fitted: np.ndarray | None = None
+    """(M,) bool: the radius was fitted to the surface there (False where the centreline is
+    continued straight beyond it); None: everywhere."""
+
+    @property
+    def fitted_radius(self) -> np.ndarray:
+        return self.radius if self.fitted is None else self.radius[self.fitted]
 
     @property
     def arclength(self) -> np.ndarray:
@@ -93,14 +107,17 @@ class FittedLumen:
         return np.concatenate([[0.0], np.cumsum(steps)])
 
     def save(self, path: Path) -> None:
-        """lumen.json: points, radius, arclength (written atomically)."""
+        """lumen.json: points, radius, arclength, fitted (written atomically)."""
+        fitted = None if self.fitted is None else self.fitted.tolist()
         write_json(path, {"points": self.points.tolist(), "radius": self.radius.tolist(),
-                          "arclength": self.arclength.tolist()})
+                          "arclength": self.arclength.tolist(), "fitted": fitted})
 
     @classmethod
     def load(cls, path: Path) -> FittedLumen:
         data = json.loads(Path(path).read_text())
-        return cls(np.asarray(data["points"], float), np.asarray(data["radius"], float))
+        fitted = data.get("fitted")
+        return cls(np.asarray(data["points"], float), np.asarray(data["radius"], float),
+                   None if fitted is None else np.asarray(fitted, bool))
 
 
 def fit_lumen(poses: np.ndarray, surface: np.ndarray, fps: float = 30.0,
@@ -136,22 +153,31 @@ def fit_lumen(poses: np.ndarray, surface: np.ndarray, fps: float = 30.0,
     sigma = config.smoothing_stations
     for _ in range(config.iterations):
         centre, radius = _cross_sections(path, surface, tree, spacing, config.reach * r0, config)
+        size = min(config.median_stations, len(radius))
+        centre = median_filter(centre, size=(size, 1), mode="mirror")
+        radius = median_filter(radius, size=size, mode="mirror")
         fitted = _resample(FittedLumen(gaussian_filter1d(centre, sigma, axis=0, mode="nearest"),
                                        gaussian_filter1d(radius, sigma, mode="nearest")), spacing)
         if len(fitted.points) < 2:  # no direction to go on in, nor a tube to cut into cells
             raise InputError(f"{name}: the surface gives usable cross-sections of the lumen over "
                              f"less than half a station ({0.5 * spacing:.3g}); too little wall "
                              f"around the camera path for a lumen fit")
-        # Where the surface ends, the centreline goes on straight with the end radius.
-        lumen = FittedLumen(_extended(fitted.points, ahead, behind, spacing),
-                            np.pad(fitted.radius, (behind, ahead), mode="edge"))
+        # Where the surface ends, the centreline goes on straight with the end radius, and
+        # past the cameras beyond it (the wall beside the last ones is rarely seen).
+        before, after = _past_cameras(fitted.points, poses[:, :3, 3], spacing)
+        ends = (behind + before, ahead + after)
+        lumen = FittedLumen(_extended(fitted.points, ahead=ends[1], behind=ends[0],
+                                      spacing=spacing),
+                            np.pad(fitted.radius, ends, mode="edge"),
+                            np.pad(np.ones(len(fitted.radius), bool), ends))
         path = lumen.points
     return lumen
 
 
 def metric_scale(lumen: FittedLumen, typical_radius_cm: float) -> float:
-    """The factor that makes the median fitted radius equal typical_radius_cm."""
-    return typical_radius_cm / float(np.median(lumen.radius))
+    """The factor that makes the median radius fitted to the surface equal typical_radius_cm
+    (the straight continuations beyond the surface, which repeat the end radii, left out)."""
+    return typical_radius_cm / float(np.median(lumen.fitted_radius))
 
 
 def _length(points: np.ndarray) -> float:
@@ -194,12 +220,28 @@ def _stations(centres: np.ndarray, spacing: float) -> np.ndarray:
 def _extended(path: np.ndarray, ahead: int, behind: int, spacing: float) -> np.ndarray:
     """The path continued straight on by `ahead` stations after its (deep) end and `behind`
     stations before its start."""
-    k = min(3, len(path) - 1)
-    head, tail = path[0] - path[k], path[-1] - path[-1 - k]
-    head, tail = (d / max(np.linalg.norm(d), 1e-12) for d in (head, tail))
+    head, tail = _end_directions(path)
     before = path[0] + spacing * np.arange(behind, 0, -1)[:, None] * head
     after = path[-1] + spacing * np.arange(1, ahead + 1)[:, None] * tail
     return np.vstack([before, path, after])
+
+
+def _end_directions(path: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Unit directions out of the path's start and out of its end."""
+    k = min(3, len(path) - 1)
+    head, tail = path[0] - path[k], path[-1] - path[-1 - k]
+    return tuple(d / max(np.linalg.norm(d), 1e-12) for d in (head, tail))
+
+
+def _past_cameras(line: np.ndarray, cameras: np.ndarray, spacing: float) -> tuple[int, int]:
+    """Stations to add before the line's start and after its end, continuing it straight, so
+    that it reaches past the cameras nearest to either end (which would project onto the
+    end and get a wrong ℓ)."""
+    nearest = cKDTree(line).query(cameras)[1]
+    head, tail = _end_directions(line)
+    before = ((cameras[nearest == 0] - line[0]) @ head).max(initial=0.0)
+    after = ((cameras[nearest == len(line) - 1] - line[-1]) @ tail).max(initial=0.0)
+    return int(np.ceil(before / spacing)), int(np.ceil(after / spacing))
 
 
 def _tangents(path: np.ndarray) -> np.ndarray:
@@ -228,6 +270,8 @@ def _cross_sections(path: np.ndarray, surface: np.ndarray, tree: cKDTree, spacin
         if fit is None:
             continue
         (cx, cy), r = fit
+        if np.hypot(cx, cy) >= r:  # the station (on the path, in the lumen) lies outside
+            continue
         angles = np.arctan2(xy[:, 1] - cy, xy[:, 0] - cx)
         sectors = np.unique(((angles + np.pi) / (np.pi / 6)).astype(int) % 12)
         if len(sectors) >= config.min_arc_bins:
