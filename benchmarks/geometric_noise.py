@@ -45,13 +45,15 @@ DOWNSTREAM = [W.RECONSTRUCTION, W.MESH, W.LUMEN, W.GEOMETRIC, W.REPORT, W.COVERA
 def nudge(work: Path, stage: str, rng: np.random.Generator | None, pose_nudge: float) -> None:
     """Apply the stage's nudge in `work` (none when rng is None), take the current settings of
     the stages that rerun, and delete the outputs that must be made again."""
-    if rng is not None and stage == "posegraph":
+    if rng is None:
+        pass
+    elif stage == "posegraph":
         depth = np.load(work / W.DEPTH)
         if depth.dtype != np.float16:
             raise SystemExit(f"{work / W.DEPTH}: expected float16 depth, found {depth.dtype}")
         up = np.nextafter(depth, np.float16(np.inf))
         np.save(work / W.DEPTH, np.where(rng.random(depth.shape) < 0.01, up, depth))
-    elif rng is not None:
+    else:
         poses = np.load(work / W.POSES)
         poses[:, :3, 3] += pose_nudge * rng.standard_normal(poses[:, :3, 3].shape)
         np.save(work / W.POSES, poses)
@@ -67,7 +69,7 @@ def nudge(work: Path, stage: str, rng: np.random.Generator | None, pose_nudge: f
 def rerun(args: argparse.Namespace, rows: list[dict], models: Models, seed: int | None
           ) -> tuple[list[dict], float]:
     """The eval's rows with the geometric coverage of a nudged rerun (seed None: not nudged),
-    and the largest move of a smoothed camera position in cm."""
+    and the largest move of a smoothed camera position from the unnudged rerun's, in cm."""
     nudged, pose_moves = [], []
     for procedure in dict.fromkeys(r["procedure"] for r in rows):
         src = args.eval / f"{Path(procedure).parent.name}-{Path(procedure).name}"
@@ -82,10 +84,17 @@ def rerun(args: argparse.Namespace, rows: list[dict], models: Models, seed: int 
         mine = [r for r in rows if r["procedure"] == procedure]
         nudged += [{**r, "geometric": t["geometric"], "combined": t["coverage"]}
                    for r, t in zip(mine, table, strict=True)]
-        cm = json.loads((src / W.RECONSTRUCTION).read_text())["scale_cm_per_unit"]
-        step = np.load(work / W.POSES)[:, :3, 3] - np.load(src / W.POSES)[:, :3, 3]
+        base = args.out / f"{src.name}-{args.stage}-None"
+        cm = json.loads((base / W.RECONSTRUCTION).read_text())["scale_cm_per_unit"]
+        step = np.load(work / W.POSES)[:, :3, 3] - np.load(base / W.POSES)[:, :3, 3]
         pose_moves.append(cm * np.linalg.norm(step, axis=1).max())
     return nudged, max(pose_moves)
+
+
+def summary_line(label: str, rows: list[dict]) -> str:
+    summary = summarise(rows)
+    return (f"{label}: geometric MAE {summary['geometric']['mae']:.4f}, agreement "
+            f"{summary['branch_agreement']:.3f}")
 
 
 def main() -> None:
@@ -98,24 +107,19 @@ def main() -> None:
     parser.add_argument("--procedures", nargs="*", help="only these (e.g. proc_0015)")
     parser.add_argument("--out", type=Path, required=True, help="scratch folder for the copies")
     args = parser.parse_args()
-    rows = [r for r in json.loads((args.eval / "eval.json").read_text())["segments"]
-            if not args.procedures or Path(r["procedure"]).name in args.procedures]
+    evaluated = [r for r in json.loads((args.eval / "eval.json").read_text())["segments"]
+                 if not args.procedures or Path(r["procedure"]).name in args.procedures]
     models = Models.load(RunConfig())
-    for label, table in (("as evaluated", rows), ("rerun, not nudged", None)):
-        if table is None:
-            rows = table = rerun(args, rows, models, None)[0]
-        summary = summarise(table)
-        print(f"{label}: geometric MAE {summary['geometric']['mae']:.4f}, agreement "
-              f"{summary['branch_agreement']:.3f}")
+    print(summary_line("as evaluated", evaluated))
+    rows = rerun(args, evaluated, models, None)[0]
+    print(summary_line("rerun, not nudged", rows))
     for seed in args.seeds:
         nudged, pose_move = rerun(args, rows, models, seed)
-        summary = summarise(nudged)
         moved = [(abs(a["geometric"] - b["geometric"]), f"{Path(a['procedure']).name} "
                   f"segment {a['segment']}: {a['geometric']:.3f} -> {b['geometric']:.3f}")
                  for a, b in zip(rows, nudged, strict=True)
                  if a["geometric"] is not None and b["geometric"] is not None]
-        print(f"seed {seed}: geometric MAE {summary['geometric']['mae']:.4f}, agreement "
-              f"{summary['branch_agreement']:.3f}, segment moves median "
+        print(f"{summary_line(f'seed {seed}', nudged)}, segment moves median "
               f"{np.median([m for m, _ in moved]):.4f}, largest {max(moved)[0]:.3f} "
               f"({max(moved)[1]}); camera moved at most {pose_move:.3f} cm")
 

@@ -52,9 +52,10 @@ class LumenFitConfig:
     path_smoothing_s: float = 1.0
     """Gaussian smoothing of the camera centres over time, in seconds."""
     median_stations: int = 5
-    """Running median of the fitted centres and radii over this many stations, before the
-    smoothing: one bad cross-section (a piece of a fold, the ragged end of the surface) is
-    outvoted by its neighbours instead of pulling the fit and, at an end, the extension."""
+    """Running median of the fitted radii and of the centres' offsets from the path over this
+    many stations, before the smoothing: one bad cross-section (a piece of a fold, the ragged
+    end of the surface) is outvoted by its neighbours instead of pulling the fit and, at an
+    end, the continuation (two in a row are outvoted too, but not at an end)."""
     smoothing_stations: float = 2.0
     """Gaussian smoothing of the fitted centres and radii, in stations."""
     min_points: int = 30
@@ -69,7 +70,8 @@ class LumenFitConfig:
     extend: float = 3.5
     """The path, and the fitted centreline where the surface ends, are continued straight on
     this far (× r0) beyond their deep end, where the look-ahead band of the coverage
-    definition lies."""
+    definition lies (for the centreline: beyond the farther of its end and the cameras past
+    it)."""
     extend_back: float = 1.0
     """... and this far (× r0) beyond their other end, which smoothing would otherwise
     shorten."""
@@ -82,9 +84,10 @@ class LumenFitConfig:
     def __post_init__(self) -> None:
         if not self.thinning >= 0:
             raise InputError(f"LumenFitConfig.thinning must be >= 0, got {self.thinning}")
-        if self.iterations < 1 or self.spacing <= 0 or self.reach <= 0:
-            raise InputError(f"LumenFitConfig needs iterations >= 1 and positive spacing and "
-                             f"reach: {self}")
+        if self.iterations < 1 or self.median_stations < 1 or self.spacing <= 0 \
+                or self.reach <= 0:
+            raise InputError(f"LumenFitConfig needs iterations >= 1, median_stations >= 1 and "
+                             f"positive spacing and reach: {self}")
 
 
 @dataclass
@@ -96,10 +99,6 @@ class FittedLumen:
     fitted: np.ndarray | None = None
     """(M,) bool: the radius was fitted to the surface there (False where the centreline is
     continued straight beyond it); None: everywhere."""
-
-    @property
-    def fitted_radius(self) -> np.ndarray:
-        return self.radius if self.fitted is None else self.radius[self.fitted]
 
     @property
     def arclength(self) -> np.ndarray:
@@ -153,9 +152,6 @@ def fit_lumen(poses: np.ndarray, surface: np.ndarray, fps: float = 30.0,
     sigma = config.smoothing_stations
     for _ in range(config.iterations):
         centre, radius = _cross_sections(path, surface, tree, spacing, config.reach * r0, config)
-        size = min(config.median_stations, len(radius))
-        centre = median_filter(centre, size=(size, 1), mode="mirror")
-        radius = median_filter(radius, size=size, mode="mirror")
         fitted = _resample(FittedLumen(gaussian_filter1d(centre, sigma, axis=0, mode="nearest"),
                                        gaussian_filter1d(radius, sigma, mode="nearest")), spacing)
         if len(fitted.points) < 2:  # no direction to go on in, nor a tube to cut into cells
@@ -164,7 +160,7 @@ def fit_lumen(poses: np.ndarray, surface: np.ndarray, fps: float = 30.0,
                              f"around the camera path for a lumen fit")
         # Where the surface ends, the centreline goes on straight with the end radius, and
         # past the cameras beyond it (the wall beside the last ones is rarely seen).
-        before, after = _past_cameras(fitted.points, poses[:, :3, 3], spacing)
+        before, after = _past_cameras(fitted.points, centres, spacing)
         ends = (behind + before, ahead + after)
         lumen = FittedLumen(_extended(fitted.points, ahead=ends[1], behind=ends[0],
                                       spacing=spacing),
@@ -177,7 +173,8 @@ def fit_lumen(poses: np.ndarray, surface: np.ndarray, fps: float = 30.0,
 def metric_scale(lumen: FittedLumen, typical_radius_cm: float) -> float:
     """The factor that makes the median radius fitted to the surface equal typical_radius_cm
     (the straight continuations beyond the surface, which repeat the end radii, left out)."""
-    return typical_radius_cm / float(np.median(lumen.fitted_radius))
+    radius = lumen.radius if lumen.fitted is None else lumen.radius[lumen.fitted]
+    return typical_radius_cm / float(np.median(radius))
 
 
 def _length(points: np.ndarray) -> float:
@@ -235,8 +232,9 @@ def _end_directions(path: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def _past_cameras(line: np.ndarray, cameras: np.ndarray, spacing: float) -> tuple[int, int]:
     """Stations to add before the line's start and after its end, continuing it straight, so
-    that it reaches past the cameras nearest to either end (which would project onto the
-    end and get a wrong ℓ)."""
+    that it reaches past the cameras (smoothed centres) nearest to either end, which would
+    otherwise share the end's ℓ. Cameras that turn a bend beyond the fitted wall are not
+    followed round it: the continuation is straight."""
     nearest = cKDTree(line).query(cameras)[1]
     head, tail = _end_directions(line)
     before = ((cameras[nearest == 0] - line[0]) @ head).max(initial=0.0)
@@ -252,7 +250,7 @@ def _tangents(path: np.ndarray) -> np.ndarray:
 def _cross_sections(path: np.ndarray, surface: np.ndarray, tree: cKDTree, spacing: float,
                     reach: float, config: LumenFitConfig) -> tuple[np.ndarray, np.ndarray]:
     """Circle centre and radius at the stations from the first to the last fitted one, gaps
-    between them filled by interpolation."""
+    between them filled by interpolation, then a running median along the stations."""
     tangents = _tangents(path)
     centre = np.full_like(path, np.nan)
     radius = np.full(len(path), np.nan)
@@ -281,8 +279,14 @@ def _cross_sections(path: np.ndarray, surface: np.ndarray, tree: cKDTree, spacin
         raise InputError("the reconstruction gives no usable cross-section of the lumen (too "
                          "few surface points around the camera path); check depth and poses")
     index = np.arange(good[0], good[-1] + 1)  # from the first to the last fitted station
-    centre = np.stack([np.interp(index, good, centre[good, k]) for k in range(3)], axis=1)
-    return centre, np.interp(index, good, radius[good])
+    offset = np.stack([np.interp(index, good, centre[good, k] - path[good, k])
+                       for k in range(3)], axis=1)
+    radius = np.interp(index, good, radius[good])
+    # The median runs over the centres' offsets from the path, not the centres, so that it
+    # does not pull the ends of the centreline in.
+    size = min(config.median_stations, len(index))
+    offset = median_filter(offset, size=(size, 1), mode="mirror")
+    return path[index] + offset, median_filter(radius, size=size, mode="mirror")
 
 
 def _circle(xy: np.ndarray, rounds: int = 3) -> tuple[np.ndarray, float] | None:

@@ -5,10 +5,10 @@ in the same scale (smoothed by fusion.posegraph beforehand); returns poses in cm
 the coloured mesh and the lumen.
 
 Scale rule: depth and translation share one unknown scale (monocular video). A first lumen is
-fitted to a point cloud back-projected from every `cloud_stride`-th frame; the scale makes its
-median radius `typical_radius_cm`. Depth and poses are multiplied by it, fused into a TSDF with
-`voxel_cm` voxels, and the lumen is fitted again, to the mesh. With known metric inputs (the
-simulator's) pass the scale instead.
+fitted to a point cloud back-projected from every `cloud_stride`-th frame; the scale makes the
+median radius fitted to it `typical_radius_cm`. Depth and poses are multiplied by it, fused
+into a TSDF with `voxel_cm` voxels, and the lumen is fitted again, to the mesh. With known
+metric inputs (the simulator's) pass the scale instead.
 """
 
 from __future__ import annotations
