@@ -52,10 +52,10 @@ class LumenFitConfig:
     path_smoothing_s: float = 1.0
     """Gaussian smoothing of the camera centres over time, in seconds."""
     median_stations: int = 5
-    """Running median of the fitted radii and of the centres' offsets from the path over this
-    many stations, before the smoothing: one bad cross-section (a piece of a fold, the ragged
-    end of the surface) is outvoted by its neighbours instead of pulling the fit and, at an
-    end, the continuation (two in a row are outvoted too, but not at an end)."""
+    """Running median of the fitted centres and radii over this many stations (when at least
+    this many were fitted), before the smoothing: one bad cross-section (a piece of a fold,
+    the ragged end of the surface) is outvoted by its neighbours instead of pulling the fit
+    and, at an end, the continuation (two in a row are outvoted too, but not at an end)."""
     smoothing_stations: float = 2.0
     """Gaussian smoothing of the fitted centres and radii, in stations."""
     min_points: int = 30
@@ -279,14 +279,15 @@ def _cross_sections(path: np.ndarray, surface: np.ndarray, tree: cKDTree, spacin
         raise InputError("the reconstruction gives no usable cross-section of the lumen (too "
                          "few surface points around the camera path); check depth and poses")
     index = np.arange(good[0], good[-1] + 1)  # from the first to the last fitted station
-    offset = np.stack([np.interp(index, good, centre[good, k] - path[good, k])
-                       for k in range(3)], axis=1)
+    centre = np.stack([np.interp(index, good, centre[good, k]) for k in range(3)], axis=1)
     radius = np.interp(index, good, radius[good])
-    # The median runs over the centres' offsets from the path, not the centres, so that it
-    # does not pull the ends of the centreline in.
-    size = min(config.median_stations, len(index))
-    offset = median_filter(offset, size=(size, 1), mode="mirror")
-    return path[index] + offset, median_filter(radius, size=size, mode="mirror")
+    if len(index) < config.median_stations:  # too short to outvote anything
+        return centre, radius
+    # Mirrored at the ends, so that a bad end section is outvoted too; an end centre then
+    # takes its neighbour's place, shortening the centreline by up to a station.
+    size = (config.median_stations, 1)
+    return (median_filter(centre, size=size, mode="mirror"),
+            median_filter(radius, size=size[0], mode="mirror"))
 
 
 def _circle(xy: np.ndarray, rounds: int = 3) -> tuple[np.ndarray, float] | None:
