@@ -6,7 +6,7 @@ work folder gets one of two nudges, and the stages after it run again:
     as float16); pose graph, reconstruction and geometric coverage rerun;
   - `reconstruction`: the smoothed poses' translations moved by --pose-nudge (normal noise
     per axis, in the network's unit: reconstruction.json's scale_cm_per_unit gives it in cm,
-    22.7 for data/heldout proc_0015); reconstruction and geometric coverage rerun.
+    10-15 for data/heldout); reconstruction and geometric coverage rerun.
 The stages that rerun take their settings from the current code. They first rerun without a
 nudge (so a change to those settings is measured too), and the nudged runs are compared with
 that. Each procedure's nudge is drawn from (seed, procedure name), so --procedures reruns a
@@ -42,12 +42,9 @@ DOWNSTREAM = [W.RECONSTRUCTION, W.MESH, W.LUMEN, W.GEOMETRIC, W.REPORT, W.COVERA
               W.COVERAGE_CSV, W.GEOMETRIC_ERROR, W.MAPS]
 
 
-def nudge(work: Path, stage: str, rng: np.random.Generator | None, pose_nudge: float) -> None:
-    """Apply the stage's nudge in `work` (none when rng is None), take the current settings of
-    the stages that rerun, and delete the outputs that must be made again."""
-    if rng is None:
-        pass
-    elif stage == "posegraph":
+def nudge(work: Path, stage: str, rng: np.random.Generator, pose_nudge: float) -> None:
+    """Apply the stage's nudge to the inputs of the stages that rerun, in `work`."""
+    if stage == "posegraph":
         depth = np.load(work / W.DEPTH)
         if depth.dtype != np.float16:
             raise SystemExit(f"{work / W.DEPTH}: expected float16 depth, found {depth.dtype}")
@@ -57,6 +54,10 @@ def nudge(work: Path, stage: str, rng: np.random.Generator | None, pose_nudge: f
         poses = np.load(work / W.POSES)
         poses[:, :3, 3] += pose_nudge * rng.standard_normal(poses[:, :3, 3].shape)
         np.save(work / W.POSES, poses)
+
+
+def reset(work: Path, stage: str) -> None:
+    """Give `work` the current settings of the stages that rerun, and delete their outputs."""
     saved = json.loads((work / W.CONFIG).read_text())
     current = json.loads(json.dumps(asdict(RunConfig())))
     saved["config"].update({key: current[key] for key in SETTINGS[stage]})
@@ -76,8 +77,10 @@ def rerun(args: argparse.Namespace, rows: list[dict], models: Models, seed: int 
         work = args.out / f"{src.name}-{args.stage}-{seed}"
         shutil.rmtree(work, ignore_errors=True)
         shutil.copytree(src, work)
-        rng = None if seed is None else np.random.default_rng([seed, zlib.crc32(src.name.encode())])
-        nudge(work, args.stage, rng, args.pose_nudge)
+        if seed is not None:
+            rng = np.random.default_rng([seed, zlib.crc32(src.name.encode())])
+            nudge(work, args.stage, rng, args.pose_nudge)
+        reset(work, args.stage)
         run_video(Path(procedure), work, RunConfig(), models, progress=False,
                   echo=lambda _: None)
         table = json.loads((work / W.COVERAGE_JSON).read_text())["segments"]

@@ -96,8 +96,7 @@ def test_lumen_fit_outvotes_bad_cross_sections():
     plane: near the end the slabs hold short, noisy arcs, whose circle fits can come out far
     too small or large. One such section must not pull the radius along the fit, nor the
     radius continued into the look-ahead band beyond the end: both stay within 5% and 10% of
-    the tube's 2 cm (now at most 2.4% and 6.5%; the fit before the running median and the
-    enclosing rule was up to 8% and 24% off)."""
+    the tube's 2 cm (the fit before the running median and the enclosing rule fails this)."""
     surface, poses = curved_tube(), withdrawal_on_arc()
     angle = np.arctan2(surface[:, 2], BEND_RADIUS - surface[:, 0])
     for seed in range(5):
@@ -113,8 +112,8 @@ def test_lumen_fit_rejects_circles_that_miss_the_station():
     """Along 3 cm of the tube the wall is missing and a narrow tube (0.4 cm, a fold or a
     polyp in section) lies against it, off the camera path: its slabs fit small circles that
     do not enclose the stations. They are rejected, and the radius there comes from the wall
-    either side (without the rule it drops to 0.8 cm; every point is kept here, so that the
-    narrow tube's slabs hold enough points to be fitted)."""
+    either side (without the rule it drops to the narrow tube's scale; every point is kept
+    here, so that the narrow tube's slabs hold enough points to be fitted)."""
     surface, poses = curved_tube(), withdrawal_on_arc()
     angle = np.arctan2(surface[:, 2], BEND_RADIUS - surface[:, 0])
     band = np.abs(angle - 0.7) < 0.1
