@@ -5,7 +5,13 @@ maps, on the maps' training triplets: the terms `train-depth --maps` pulls on wi
 Prints the maps' own rotation (its L1 size: how far a network that never turns would lie),
 then per model the rotation's L1 distance (axis-angle, summed over the axes, mean over the
 two pairs of a triplet, in radians and degrees), 1 - cos of the angle between the
-translations, and |log| of the focal lengths' ratio.
+translations, and |log| of the focal lengths' ratio. Where the inputs are simulated, the
+same distances from the true motion too: the maps' own (how far the target lies from the
+truth) and each model's; and whether the model's own view-synthesis loss (its depth, on the
+same triplets) prefers the true rotation: the loss at its own motion and K, with the true
+rotation in place of its own, with the true motion (translations at its own lengths), and
+with the true K as well; and the share of pairs whose negative gradient on the rotation
+points towards the truth (cosine > 0), with the median cosine.
 
     python benchmarks/map_motion_distance.py --data data/train-pink data/train-dusk \
         --maps data/sfm-maps --model learned/checkpoints/depth-fast.safetensors \
@@ -19,10 +25,20 @@ from pathlib import Path
 
 import numpy as np
 import torch
+import torch.nn.functional as F
 
+from learned.flow import flows_to_sources
 from learned.frames import open_sequence
-from learned.map_triplets import MapTriplets, map_motion_errors
-from learned.model import load_depth_model
+from learned.losses import view_synthesis_loss
+from learned.map_triplets import (
+    MapBatch,
+    MapTriplets,
+    Motion,
+    map_motion_errors,
+    relative_motion,
+    stack_motions,
+)
+from learned.model import DepthModel, load_depth_model
 from learned.train import TripletSampler, expand_inputs
 
 
@@ -48,10 +64,21 @@ def main() -> None:
     maps = MapTriplets(sampler.sequences, sampler.gaps, args.maps, args.min_points)
     batches = [maps.batch(args.batch_size, np.random.default_rng([args.seed, i]))
                for i in range(args.batches)]
+    truths = [true_batch(maps, batch, np.random.default_rng([args.seed, i]), args.batch_size)
+              for i, batch in enumerate(batches)]
     still = np.mean([float(torch.stack([side[0].abs().sum(1).mean() for side in batch.motions])
                                .mean()) for batch in batches])
     print(f"the maps' own rotation, as far as a motion network that never turns would lie: "
           f"{still:.4f} rad ({np.degrees(still):.2f}°)")
+    if truths[0] is not None:
+        errors = np.mean([[float(e) for e in map_motion_errors(truth.motions, truth.K, batch)]
+                          for batch, truth in zip(batches, truths, strict=True)], axis=0)
+        still = np.mean([float(torch.stack([side[0].abs().sum(1).mean()
+                                            for side in truth.motions]).mean())
+                         for truth in truths])
+        print(f"the true rotation's own size {still:.4f} rad ({np.degrees(still):.2f}°); the "
+              f"truth from the maps: rotation {errors[0]:.4f} rad ({np.degrees(errors[0]):.2f}°)"
+              f", direction {errors[1]:.4f}, focal {errors[2]:.4f}")
     for path, model in zip(args.model, models, strict=True):
         if (model.config.height, model.config.width) != size:
             raise SystemExit(f"{path}: another preset's size than {args.model[0]}")
@@ -61,6 +88,73 @@ def main() -> None:
                 *model.triplet_motion(batch.frames), batch)] for batch in batches], axis=0)
         print(f"{path}: rotation {errors[0]:.4f} rad ({np.degrees(errors[0]):.2f}°), "
               f"direction {errors[1]:.4f}, focal {errors[2]:.4f}")
+        if truths[0] is not None:
+            with torch.no_grad():
+                errors = np.mean([[float(e) for e in map_motion_errors(
+                    *model.triplet_motion(batch.frames), truth)]
+                    for batch, truth in zip(batches, truths, strict=True)], axis=0)
+            print(f"    from the truth: rotation {errors[0]:.4f} rad "
+                  f"({np.degrees(errors[0]):.2f}°), direction {errors[1]:.4f}, "
+                  f"focal {errors[2]:.4f}")
+            checks = [loss_towards_truth(model, batch, truth)
+                      for batch, truth in zip(batches, truths, strict=True)]
+            losses, cosines = [c[0] for c in checks], [c[1] for c in checks]
+            own, true_rotation, true_motion, true_K = np.mean(losses, axis=0)
+            cosines = np.concatenate(cosines)
+            print(f"    its loss: own motion {own:.4f}, true rotation {true_rotation:.4f}, true "
+                  f"motion {true_motion:.4f}, and true K {true_K:.4f}; gradient towards the "
+                  f"true rotation in {(cosines > 0).mean():.0%} of pairs (median cosine "
+                  f"{np.median(cosines):.2f})")
+
+
+def loss_towards_truth(model: DepthModel, batch: MapBatch, truth: MapBatch
+                       ) -> tuple[list[float], np.ndarray]:
+    """The model's view-synthesis loss on the batch (its own depth) at its own motion and K,
+    at the true rotation, at the true motion (translations kept at the model's lengths) and
+    with the true K too; and per pair the cosine between the loss's negative gradient on the
+    rotation and the way from the model's rotation to the true one."""
+    frames, config = batch.frames, model.config
+    with torch.no_grad():
+        depths = model.depth(frames.flatten(0, 1)).unflatten(0, frames.shape[:2])
+        motions, K = model.triplet_motion(frames)
+    target, sources = frames[:, 1], [frames[:, 0], frames[:, 2]]
+    flows = flows_to_sources(target, sources, config)
+
+    def loss(chosen: list[Motion], intrinsics: torch.Tensor) -> torch.Tensor:
+        return view_synthesis_loss(target, sources, depths[:, 1], [depths[:, 0], depths[:, 2]],
+                                   chosen, intrinsics, batch.regions, config, flows).total
+
+    def lengths_of(own: torch.Tensor, true: torch.Tensor) -> torch.Tensor:
+        return true / true.norm(dim=1, keepdim=True) * own.norm(dim=1, keepdim=True)
+
+    true_rotation = [(t[0], m[1], t[2], m[3]) for m, t in zip(motions, truth.motions, strict=True)]
+    true_motion = [(t[0], lengths_of(m[1], t[1]), t[2], lengths_of(m[3], t[3]))
+                   for m, t in zip(motions, truth.motions, strict=True)]
+    with torch.no_grad():
+        losses = [float(loss(motions, K)), float(loss(true_rotation, K)),
+                  float(loss(true_motion, K)), float(loss(true_motion, truth.K))]
+    leaves = [tuple(part.clone().requires_grad_(True) for part in m) for m in motions]
+    loss(leaves, K).backward()
+    cosines = [F.cosine_similarity(-mine[0].grad, true[0] - mine[0].detach(), dim=1)
+               for mine, true in zip(leaves, truth.motions, strict=True)]
+    return losses, torch.cat(cosines).numpy()
+
+
+def true_batch(maps: MapTriplets, batch: MapBatch, rng: np.random.Generator, size: int
+               ) -> MapBatch | None:
+    """The batch with the true motion and K of its triplets in place of the maps' (drawn
+    again with a copy of the generator `maps.batch` drew them with), or None where an input
+    has no true poses."""
+    sides, Ks = [], []
+    for pick in rng.choice(len(maps.triplets), size):
+        k, t = maps.triplets[pick]
+        seq, gap = maps.sequences[k], maps.gaps[k]
+        if seq.poses is None or seq.camera is None:
+            return None
+        sides.append([relative_motion(seq.poses, t, s) for s in (t - gap, t + gap)])
+        Ks.append(seq.camera.K)
+    return MapBatch(batch.frames, batch.regions, torch.tensor(np.stack(Ks), dtype=torch.float32),
+                    stack_motions(sides), batch.points)
 
 
 if __name__ == "__main__":
