@@ -66,11 +66,12 @@ def main() -> None:
                for i in range(args.batches)]
     truths = [true_batch(maps, batch, np.random.default_rng([args.seed, i]), args.batch_size)
               for i, batch in enumerate(batches)]
+    known = all(truth is not None for truth in truths)
     still = np.mean([float(torch.stack([side[0].abs().sum(1).mean() for side in batch.motions])
                                .mean()) for batch in batches])
     print(f"the maps' own rotation, as far as a motion network that never turns would lie: "
           f"{still:.4f} rad ({np.degrees(still):.2f}°)")
-    if truths[0] is not None:
+    if known:
         errors = np.mean([[float(e) for e in map_motion_errors(truth.motions, truth.K, batch)]
                           for batch, truth in zip(batches, truths, strict=True)], axis=0)
         still = np.mean([float(torch.stack([side[0].abs().sum(1).mean()
@@ -88,7 +89,7 @@ def main() -> None:
                 *model.triplet_motion(batch.frames), batch)] for batch in batches], axis=0)
         print(f"{path}: rotation {errors[0]:.4f} rad ({np.degrees(errors[0]):.2f}°), "
               f"direction {errors[1]:.4f}, focal {errors[2]:.4f}")
-        if truths[0] is not None:
+        if known:
             with torch.no_grad():
                 errors = np.mean([[float(e) for e in map_motion_errors(
                     *model.triplet_motion(batch.frames), truth)]

@@ -1,4 +1,4 @@
-"""Can the motion network learn the rotation at all? An upper bound with the truth as target.
+"""Can the motion network learn the rotation at all? Trained with the truth as its target.
 
 A fresh MotionNet (of the fast preset, or with `--set` changes such as a wider encoder; or a
 trained checkpoint's with `--init`) is trained on simulated procedures with the true motion
@@ -40,7 +40,8 @@ from learned.train import TripletSampler, expand_inputs
 
 class CorrelationMotion(nn.Module):
     """A motion network that compares the two frames' features rather than stacking their
-    pixels: one encoder for each frame (the fast motion encoder's first two stages, stride 4),
+    pixels: one encoder shared by both frames (the fast motion encoder's first two stages,
+    stride 4),
     their correlation over shifts of up to `reach` feature pixels each way (±16 image pixels
     at reach 4), with the pixel's place in the image beside it, then strided convolutions and
     a mean to the 6-DoF motion (scaled as MotionNet's). Its K is a constant: this benchmark
