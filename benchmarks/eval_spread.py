@@ -1,5 +1,7 @@
 """How much one procedure weighs in an evaluation: each branch's (or mode's) MAE over all
-segments and the largest change when one procedure's segments are left out.
+segments and the largest change when one procedure's segments are left out; then its MAE
+and bias by the segment's place in its video (first, middle, last: a video's first segment
+has context frames after it only, its last before it only).
 
 Reads the eval.json of `c2d2 eval` (branches learned and geometric) or the geometric_eval.json
 of benchmarks/geometric_eval.py (each of its modes).
@@ -13,23 +15,46 @@ from __future__ import annotations
 import argparse
 import json
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
 
-def errors(data: dict) -> dict[str, list[tuple[str, float]]]:
-    """Per branch or mode: (procedure, absolute error) of every segment with a value."""
+class Row(NamedTuple):
+    procedure: str
+    segment: int
+    segments: int
+    """How many segments the procedure has."""
+    error: float
+    """Predicted minus true coverage."""
+
+
+def errors(data: dict) -> dict[str, list[Row]]:
+    """Per branch or mode: a row for every segment with a value."""
     if "segments" in data:  # c2d2 eval
-        return {branch: [(s["procedure"], abs(s[branch] - s["truth"])) for s in data["segments"]
-                         if s[branch] is not None] for branch in ("learned", "geometric")}
-    rows: dict[str, list[tuple[str, float]]] = {}
+        counts: dict[str, int] = {}
+        for s in data["segments"]:
+            counts[s["procedure"]] = max(counts.get(s["procedure"], 0), s["segment"] + 1)
+        return {branch: [Row(s["procedure"], s["segment"], counts[s["procedure"]],
+                             s[branch] - s["truth"])
+                         for s in data["segments"] if s[branch] is not None]
+                for branch in ("learned", "geometric")}
+    rows: dict[str, list[Row]] = {}
     for name, procedure in data["procedures"].items():
+        truth = procedure["truth"]
         for mode, result in procedure.items():
             if isinstance(result, dict) and "pred" in result:
                 rows.setdefault(mode, []).extend(
-                    (name, abs(p - t)) for p, t in zip(result["pred"], procedure["truth"],
-                                                       strict=True) if p is not None)
+                    Row(name, k, len(truth), p - t)
+                    for k, (p, t) in enumerate(zip(result["pred"], truth, strict=True))
+                    if p is not None and np.isfinite(p))
     return rows
+
+
+def place(row: Row) -> str:
+    """first, middle or last segment of its video (a one-segment video's is first)."""
+    return "first" if row.segment == 0 else "last" if row.segment == row.segments - 1 \
+        else "middle"
 
 
 def main() -> None:
@@ -37,13 +62,18 @@ def main() -> None:
     parser.add_argument("json", type=Path,
                         help="eval.json of c2d2 eval, or geometric_eval.json")
     for branch, rows in errors(json.loads(parser.parse_args().json.read_text())).items():
-        procedures = sorted({p for p, _ in rows})
-        mae = np.mean([e for _, e in rows])
-        left_out = np.array([np.mean([e for q, e in rows if q != p]) for p in procedures])
+        procedures = sorted({r.procedure for r in rows})
+        mae = np.mean([abs(r.error) for r in rows])
+        left_out = np.array([np.mean([abs(r.error) for r in rows if r.procedure != p])
+                             for p in procedures])
         print(f"{branch:13s} MAE {mae:.3f}; leaving one of {len(procedures)} procedures out "
               f"gives {left_out.min():.3f}-{left_out.max():.3f}, up to "
               f"{np.max(np.abs(left_out - mae)):.3f} away")
-
+        by_place = {name: [r.error for r in rows if place(r) == name]
+                    for name in ("first", "middle", "last")}
+        print(f"{'':13s} by the segment's place in its video: " + ", ".join(
+            f"{name} MAE {np.abs(e).mean():.3f} bias {np.mean(e):+.3f} ({len(e)})"
+            for name, e in by_place.items() if e))
 
 if __name__ == "__main__":
     main()

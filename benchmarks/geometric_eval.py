@@ -20,8 +20,8 @@ to learned depth, applied to the learned depth and translations alike), and
   local-K       learned K, true depth and poses
   local-poses   learned (smoothed) poses, true depth and K
 Prints MAE, bias and 3-class accuracy per mode, the lumen fit errors, and the frames/s of the
-pose graph + TSDF + coverage, then the MAE by style and by the segment's place in its video
-(first, middle, last); writes a JSON and a scatter plot.
+pose graph + TSDF + coverage, then the MAE by style; writes a JSON (benchmarks/eval_spread.py
+splits it by the segment's place in its video) and a scatter plot.
 
     python benchmarks/geometric_eval.py --data data/test data/cov-dusk --out docs/geometric
 """
@@ -304,24 +304,6 @@ def main() -> None:
               f"{m['segments']:4d} {m['centreline_cm']:9.3f} {m['radius_error_cm']:8.3f} "
               f"{m['geometry_fps']:6.0f}")
     print_by_style(results, paths, modes)
-    print_by_position(results, modes)
-
-
-def print_by_position(results: dict, modes: tuple[str, ...]) -> None:
-    """The MAE and bias of each mode over the first, middle and last segments of the videos
-    (a video's last segment has context frames on its deep side only, its first on the
-    other side only)."""
-    for mode in modes:
-        parts: dict[str, list[float]] = {"first": [], "middle": [], "last": []}
-        for r in results.values():
-            truth, pred = np.asarray(r["truth"], float), np.asarray(r[mode]["pred"], float)
-            for k, err in enumerate(pred - truth):
-                if np.isfinite(err):
-                    parts["first" if k == 0 else "last" if k == len(truth) - 1
-                          else "middle"].append(err)
-        print(f"{mode} by segment: " + ", ".join(
-            f"{name} MAE {np.abs(e).mean():.3f} bias {np.mean(e):+.3f} ({len(e)})"
-            for name, e in parts.items() if e))
 
 
 def print_by_style(results: dict, paths: dict[str, Path], modes: tuple[str, ...]) -> None:

@@ -21,6 +21,7 @@ points towards the truth (cosine > 0), with the median cosine.
 from __future__ import annotations
 
 import argparse
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -64,19 +65,14 @@ def main() -> None:
     maps = MapTriplets(sampler.sequences, sampler.gaps, args.maps, args.min_points)
     batches = [maps.batch(args.batch_size, np.random.default_rng([args.seed, i]))
                for i in range(args.batches)]
-    truths = [true_batch(maps, batch, np.random.default_rng([args.seed, i]), args.batch_size)
-              for i, batch in enumerate(batches)]
+    truths = [true_batch(maps, batch) for batch in batches]
     known = all(truth is not None for truth in truths)
-    still = np.mean([float(torch.stack([side[0].abs().sum(1).mean() for side in batch.motions])
-                               .mean()) for batch in batches])
+    still = rotation_size(batches)
     print(f"the maps' own rotation, as far as a motion network that never turns would lie: "
           f"{still:.4f} rad ({np.degrees(still):.2f}°)")
     if known:
-        errors = np.mean([[float(e) for e in map_motion_errors(truth.motions, truth.K, batch)]
-                          for batch, truth in zip(batches, truths, strict=True)], axis=0)
-        still = np.mean([float(torch.stack([side[0].abs().sum(1).mean()
-                                            for side in truth.motions]).mean())
-                         for truth in truths])
+        errors = distances([(truth.motions, truth.K) for truth in truths], batches)
+        still = rotation_size(truths)
         print(f"the true rotation's own size {still:.4f} rad ({np.degrees(still):.2f}°); the "
               f"truth from the maps: rotation {errors[0]:.4f} rad ({np.degrees(errors[0]):.2f}°)"
               f", direction {errors[1]:.4f}, focal {errors[2]:.4f}")
@@ -85,39 +81,52 @@ def main() -> None:
             raise SystemExit(f"{path}: another preset's size than {args.model[0]}")
         model.eval()
         with torch.no_grad():
-            errors = np.mean([[float(e) for e in map_motion_errors(
-                *model.triplet_motion(batch.frames), batch)] for batch in batches], axis=0)
+            estimates = [model.triplet_motion(batch.frames) for batch in batches]
+        errors = distances(estimates, batches)
         print(f"{path}: rotation {errors[0]:.4f} rad ({np.degrees(errors[0]):.2f}°), "
               f"direction {errors[1]:.4f}, focal {errors[2]:.4f}")
         if known:
-            with torch.no_grad():
-                errors = np.mean([[float(e) for e in map_motion_errors(
-                    *model.triplet_motion(batch.frames), truth)]
-                    for batch, truth in zip(batches, truths, strict=True)], axis=0)
+            errors = distances(estimates, truths)
             print(f"    from the truth: rotation {errors[0]:.4f} rad "
                   f"({np.degrees(errors[0]):.2f}°), direction {errors[1]:.4f}, "
                   f"focal {errors[2]:.4f}")
-            checks = [loss_towards_truth(model, batch, truth)
-                      for batch, truth in zip(batches, truths, strict=True)]
-            losses, cosines = [c[0] for c in checks], [c[1] for c in checks]
-            own, true_rotation, true_motion, true_K = np.mean(losses, axis=0)
-            cosines = np.concatenate(cosines)
+            checks = [loss_towards_truth(model, batch, truth, estimate)
+                      for batch, truth, estimate in zip(batches, truths, estimates, strict=True)]
+            own, true_rotation, true_motion, true_K = np.mean([c[0] for c in checks], axis=0)
+            cosines = np.concatenate([c[1] for c in checks])
             print(f"    its loss: own motion {own:.4f}, true rotation {true_rotation:.4f}, true "
                   f"motion {true_motion:.4f}, and true K {true_K:.4f}; gradient towards the "
                   f"true rotation in {(cosines > 0).mean():.0%} of pairs (median cosine "
                   f"{np.median(cosines):.2f})")
 
 
-def loss_towards_truth(model: DepthModel, batch: MapBatch, truth: MapBatch
+def rotation_size(batches: list[MapBatch]) -> float:
+    """The mean L1 size of the batches' rotations (radians, summed over the axes)."""
+    return float(np.mean([float(torch.stack([side[0].abs().sum(1).mean()
+                                             for side in batch.motions]).mean())
+                          for batch in batches]))
+
+
+def distances(estimates: list[tuple[list[Motion], torch.Tensor]], references: list[MapBatch]
+              ) -> np.ndarray:
+    """Rotation, direction and focal distance (map_motion_errors) of per-batch estimates
+    (motions, K) from the references' motion and K, averaged over the batches."""
+    return np.mean([[float(e) for e in map_motion_errors(*estimate, reference)]
+                    for estimate, reference in zip(estimates, references, strict=True)], axis=0)
+
+
+def loss_towards_truth(model: DepthModel, batch: MapBatch, truth: MapBatch,
+                       estimate: tuple[list[Motion], torch.Tensor]
                        ) -> tuple[list[float], np.ndarray]:
     """The model's view-synthesis loss on the batch (its own depth) at its own motion and K,
     at the true rotation, at the true motion (translations kept at the model's lengths) and
     with the true K too; and per pair the cosine between the loss's negative gradient on the
-    rotation and the way from the model's rotation to the true one."""
+    rotation and the way from the model's rotation to the true one. estimate: the model's
+    triplet_motion of the batch."""
     frames, config = batch.frames, model.config
+    motions, K = estimate
     with torch.no_grad():
         depths = model.depth(frames.flatten(0, 1)).unflatten(0, frames.shape[:2])
-        motions, K = model.triplet_motion(frames)
     target, sources = frames[:, 1], [frames[:, 0], frames[:, 2]]
     flows = flows_to_sources(target, sources, config)
 
@@ -141,21 +150,18 @@ def loss_towards_truth(model: DepthModel, batch: MapBatch, truth: MapBatch
     return losses, torch.cat(cosines).numpy()
 
 
-def true_batch(maps: MapTriplets, batch: MapBatch, rng: np.random.Generator, size: int
-               ) -> MapBatch | None:
-    """The batch with the true motion and K of its triplets in place of the maps' (drawn
-    again with a copy of the generator `maps.batch` drew them with), or None where an input
-    has no true poses."""
+def true_batch(maps: MapTriplets, batch: MapBatch) -> MapBatch | None:
+    """The batch with the true motion and K of its triplets in place of the maps', or None
+    where an input has no true poses."""
     sides, Ks = [], []
-    for pick in rng.choice(len(maps.triplets), size):
-        k, t = maps.triplets[pick]
+    for k, t in batch.triplets:
         seq, gap = maps.sequences[k], maps.gaps[k]
         if seq.poses is None or seq.camera is None:
             return None
         sides.append([relative_motion(seq.poses, t, s) for s in (t - gap, t + gap)])
         Ks.append(seq.camera.K)
-    return MapBatch(batch.frames, batch.regions, torch.tensor(np.stack(Ks), dtype=torch.float32),
-                    stack_motions(sides), batch.points)
+    return replace(batch, K=torch.tensor(np.stack(Ks), dtype=torch.float32),
+                   motions=stack_motions(sides))
 
 
 if __name__ == "__main__":

@@ -4,8 +4,10 @@ procedures.
 Per procedure: the whole video's scale (reconstruction.json, cm per network unit) against the
 truth's, taken as the median over every 60th frame of the median ratio of true to predicted
 depth. Prints the median ratio of rule to truth and the median |log| error over the
-procedures, and the segments whose camera positions start at ℓ = 0 of their lumen (the last
-cameras projected onto the centreline's end: geometric.json's ell_min).
+procedures, the segments whose camera positions start at ℓ = 0 of their lumen (the last
+cameras projected onto the centreline's end: geometric.json's ell_min), and the median ratio
+of each segment's estimated ℓ range (ell_max - ell_min) to the true one (the procedure's
+coverage), by the segment's place in its video.
 
     python benchmarks/scale_rule.py --eval data/eval-heldout-shipped data/eval-heldout-lumen
 """
@@ -42,18 +44,28 @@ def main() -> None:
         procedures = dict.fromkeys(r["procedure"] for r in
                                    json.loads((folder / "eval.json").read_text())["segments"])
         errors, clamped, segments = [], 0, 0
+        ranges: dict[str, list[float]] = {"first": [], "middle": [], "last": []}
         for source in procedures:
             work = folder / f"{Path(source).parent.name}-{Path(source).name}"
+            procedure = Procedure.open(Path(source))
             rule = json.loads((work / W.RECONSTRUCTION).read_text())["scale_cm_per_unit"]
-            errors.append(np.log(rule / true_scale(Procedure.open(Path(source)), work)))
-            ells = [s["ell_min"] for s in json.loads((work / W.GEOMETRIC).read_text())["segments"]
-                    if s["ell_min"] is not None]
-            clamped += sum(e <= 0 for e in ells)
-            segments += len(ells)
+            errors.append(np.log(rule / true_scale(procedure, work)))
+            estimated = json.loads((work / W.GEOMETRIC).read_text())["segments"]
+            true = procedure.coverage.segments
+            for k, (guess, truth) in enumerate(zip(estimated, true, strict=True)):
+                if guess["ell_min"] is None:
+                    continue
+                clamped += guess["ell_min"] <= 0
+                segments += 1
+                place = "first" if k == 0 else "last" if k == len(true) - 1 else "middle"
+                ranges[place].append((guess["ell_max"] - guess["ell_min"])
+                                     / (truth.ell_max - truth.ell_min))
         errors = np.array(errors)
         print(f"{folder}: scale rule / truth, median {np.exp(np.median(errors)):.2f}, median "
               f"|log| {np.median(np.abs(errors)):.3f} over {len(errors)} videos; segments "
-              f"starting at ℓ = 0: {clamped} of {segments}")
+              f"starting at ℓ = 0: {clamped} of {segments}; the segments' ℓ range, estimated "
+              f"/ true, median by place in the video: " + ", ".join(
+                  f"{name} {np.median(r):.2f} ({len(r)})" for name, r in ranges.items() if r))
 
 
 if __name__ == "__main__":

@@ -15,8 +15,9 @@ import argparse
 import json
 from pathlib import Path
 
-from safetensors import safe_open
 from safetensors.torch import save_file
+
+from learned.checkpoint import read_checkpoint
 
 
 def main() -> None:
@@ -25,16 +26,15 @@ def main() -> None:
     parser.add_argument("--motion", type=Path, required=True, help="model whose motion net to take")
     parser.add_argument("--out", type=Path, required=True)
     args = parser.parse_args()
-    parts, metas = {}, {}
-    for name, path in (("depth", args.depth), ("motion", args.motion)):
-        with safe_open(str(path), "pt") as f:
-            metas[name] = f.metadata()
-            names = f.keys()  # a safetensors file is not iterable
-            parts.update({k: f.get_tensor(k) for k in names if k.startswith(name + ".")})
-    presets = {n: json.loads(m["config"])["preset"] for n, m in metas.items()}
-    if len(set(presets.values())) != 1:
-        raise SystemExit(f"the models are of different presets: {presets}")
-    meta = {**metas["motion"], "depth_network_from": str(args.depth)}
+    (depth, depth_meta), (motion, meta) = read_checkpoint(args.depth), read_checkpoint(args.motion)
+    if depth_meta["config"]["preset"] != meta["config"]["preset"]:
+        raise SystemExit(f"the models are of different presets: {depth_meta['config']['preset']}"
+                         f" and {meta['config']['preset']}")
+    parts = {**{k: v for k, v in depth.items() if k.startswith("depth.")},
+             **{k: v for k, v in motion.items() if k.startswith("motion.")}}
+    meta = {**meta, "config": json.dumps(meta["config"]), "step": str(meta["step"]),
+            "depth_network_from": str(args.depth)}
+    meta.pop("optimizer_groups", None)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     save_file(parts, str(args.out), metadata=meta)
     print(f"{args.out}: {len(parts)} tensors, depth net of {args.depth}, motion of {args.motion}")

@@ -42,6 +42,8 @@ class MapBatch:
     """Target -> previous and target -> next, in the map's unit."""
     points: list[torch.Tensor]
     """Per target, (M, 3): pixel x, y and depth (map's unit) of the map points it sees."""
+    triplets: list[tuple[int, int]]
+    """Per triplet, its input's index and its target frame (MapTriplets.triplets)."""
 
 
 class InputMap(NamedTuple):
@@ -107,8 +109,8 @@ class MapTriplets:
               ) -> MapBatch:
         """`size` triplets drawn uniformly, on `device`."""
         frames, regions, Ks, sides, points = [], [], [], [], []
-        for pick in rng.choice(len(self.triplets), size):
-            k, t = self.triplets[pick]
+        drawn = [self.triplets[pick] for pick in rng.choice(len(self.triplets), size)]
+        for k, t in drawn:
             seq, gap = self.sequences[k], self.gaps[k]
             found = self.maps[k]
             height, width = seq.size
@@ -122,7 +124,8 @@ class MapTriplets:
         motions = [tuple(part.to(device) for part in side) for side in stack_motions(sides)]
         return MapBatch(to_tensor(np.stack(frames), device),
                         torch.from_numpy(np.stack(regions))[:, None].to(device),
-                        torch.tensor(Ks, dtype=torch.float32, device=device), motions, points)
+                        torch.tensor(Ks, dtype=torch.float32, device=device), motions, points,
+                        drawn)
 
 
 def map_view_loss(depths: torch.Tensor, batch: MapBatch, config: DepthConfig
