@@ -4,6 +4,7 @@ Times DepthNet alone and DepthNet + MotionNet (the pair's motion and intrinsics)
 with freshly initialised weights (speed does not depend on the weights).
 
     .venv/bin/python benchmarks/bench_depth.py --presets fast paper --batch 16 [--device cuda]
+        [--set motion_net=correlation]
 """
 
 from __future__ import annotations
@@ -13,7 +14,7 @@ import time
 
 import torch
 
-from learned.config import depth_config
+from learned.config import depth_config, parse_overrides
 from learned.device import pick_device
 from learned.model import DepthModel
 
@@ -38,13 +39,16 @@ def main() -> None:
     parser.add_argument("--batch", type=int, default=16)
     parser.add_argument("--seconds", type=float, default=10.0)
     parser.add_argument("--device", default="cpu", help="cpu, cuda or cuda:N")
+    parser.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
+                        help="change each preset's config (e.g. motion_net=correlation)")
     args = parser.parse_args()
+    overrides = parse_overrides(args.set)
     device = pick_device(args.device)
     where = torch.cuda.get_device_name(device) if device.type == "cuda" else \
         f"{torch.get_num_threads()} threads"
     print(f"torch {torch.__version__}, {where}, batch {args.batch}")
     for preset in args.presets:
-        config = depth_config(preset)
+        config = depth_config(preset, **overrides)
         model = DepthModel(config).eval().to(device)
         images = torch.rand(args.batch, 3, config.height, config.width, device=device)
         with torch.no_grad():

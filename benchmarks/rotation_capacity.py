@@ -6,12 +6,15 @@ between triplet frames as its target (the rotation's L1, radians, summed over th
 `train-depth --maps` pulls it; plus 1 - cos of the translations' angle), no view synthesis.
 It prints the rotation's L1 distance from the truth (degrees) and the slope of the predicted
 on the true rotation about each camera axis, on fixed triplets of the held-out procedures and
-of the training ones (whether it fits them at all), beside the distance of a network that
-never turns; first for the motion networks of trained depth checkpoints given with `--model`.
-If a network trained on the truth stays far from it, the motion network, not its training
-signal, holds the rotation back. `--correlation` trains instead a network that correlates
-the two frames' features over shifts (CorrelationMotion below), to see whether such a
-network reads the rotation better. A diagnostic: training on true poses is not a recipe.
+of the training ones, beside the distance of a network that never turns; first for the
+motion networks of trained depth checkpoints given with `--model`. A network that stays far
+from the truth even when trained on it is held back by its design or its training (rate,
+batch, steps), not by its training signal. `--memorise` trains on the scored training
+triplets themselves, to see whether it can fit them at all; `--mirror` mirrors the training
+pairs at random, to see whether it then learns a rule rather than the procedures. `--set
+motion_net=correlation` trains the network that correlates the two frames' features over
+shifts (`learned.nets.PairCorrelation`), to see whether it reads the rotation better. A
+diagnostic: training on true poses is not a recipe.
 
     python benchmarks/rotation_capacity.py --data data/train-pink data/train-dusk \
         --val data/val data/test --steps 1500 --model learned/checkpoints/depth-fast.safetensors
@@ -27,55 +30,13 @@ from pathlib import Path
 import numpy as np
 import torch
 import torch.nn.functional as F
-from torch import nn
 from tqdm import tqdm
 
 from learned.config import DEPTH_PRESETS, parse_overrides
 from learned.frames import FrameSequence, open_sequence
 from learned.map_triplets import relative_motion
 from learned.model import DepthModel, load_depth_model, to_tensor
-from learned.nets import ResNetEncoder
-from learned.train import TripletSampler, expand_inputs
-
-
-class CorrelationMotion(nn.Module):
-    """A motion network that compares the two frames' features rather than stacking their
-    pixels: one encoder shared by both frames (the fast motion encoder's first two stages,
-    stride 4),
-    their correlation over shifts of up to `reach` feature pixels each way (±16 image pixels
-    at reach 4), with the pixel's place in the image beside it, then strided convolutions and
-    a mean to the 6-DoF motion (scaled as MotionNet's). Its K is a constant: this benchmark
-    scores the rotation only."""
-
-    def __init__(self, channels: tuple[int, ...], reach: int = 4):
-        super().__init__()
-        self.reach = reach
-        self.encoder = ResNetEncoder(3, channels[:2], (1,))
-        shifts = (2 * reach + 1) ** 2
-        layers, width = [], shifts + 2
-        for out in (64, 96, 128):
-            layers += [nn.Conv2d(width, out, 3, 2, 1), nn.BatchNorm2d(out), nn.ReLU(inplace=True)]
-            width = out
-        self.head = nn.Sequential(*layers)
-        self.motion = nn.Conv2d(width, 6, 1)
-        self.rotation_scale = nn.Parameter(torch.tensor(0.01))
-        self.translation_scale = nn.Parameter(torch.tensor(0.01))
-
-    def forward(self, pair: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        a, b = (self.encoder((frame - 0.45) / 0.225)[-1] for frame in pair.split(3, dim=1))
-        a, b = F.normalize(a, dim=1), F.normalize(b, dim=1)
-        r = self.reach
-        padded = F.pad(b, (r, r, r, r))
-        height, width = a.shape[-2:]
-        volume = torch.stack([(a * padded[..., dy:dy + height, dx:dx + width]).sum(1)
-                              for dy in range(2 * r + 1) for dx in range(2 * r + 1)], 1)
-        y, x = torch.meshgrid(torch.linspace(-1, 1, height), torch.linspace(-1, 1, width),
-                              indexing="ij")
-        place = torch.stack([x, y]).expand(len(pair), 2, height, width)
-        motion = self.motion(self.head(torch.cat([volume, place], 1)).mean((2, 3), keepdim=True))
-        motion = motion.flatten(1)
-        K = torch.eye(3).expand(len(pair), 3, 3)
-        return motion[:, :3] * self.rotation_scale, motion[:, 3:] * self.translation_scale, K
+from learned.train import TripletSampler, expand_inputs, mirror_flips, mirror_images
 
 
 def pairs(sampler: TripletSampler, drawn: list[tuple[int, int, int]]
@@ -91,6 +52,23 @@ def pairs(sampler: TripletSampler, drawn: list[tuple[int, int, int]]
             rotation, translation = relative_motion(seq.poses, t, s)[:2]
             motions.append(torch.cat([rotation[0], translation[0]]))
     return to_tensor(np.stack(targets)), to_tensor(np.stack(sources)), torch.stack(motions)
+
+
+# Mirroring the image left-right (x -> -x) maps an axis-angle rotation (x, y, z) to
+# (x, -y, -z) and a translation to (-x, y, z); up-down (y -> -y) maps them to (-x, y, -z)
+# and (x, -y, z).
+MIRROR_SIGNS = torch.tensor([[1.0, -1, -1, -1, 1, 1], [-1.0, 1, -1, 1, -1, 1]])
+
+
+def mirrored_pairs(target: torch.Tensor, source: torch.Tensor, truth: torch.Tensor,
+                   rng: np.random.Generator) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Each pair mirrored left-right and up-down, each with chance 1/2, its motion with it
+    (each pair drawn alone, where `train-depth --set mirror=true` mirrors a whole triplet; the
+    flips come from the batches' generator, so a `--mirror` run also draws other batches)."""
+    flips = mirror_flips(len(target), rng)
+    for axis, signs in enumerate(MIRROR_SIGNS):
+        truth = torch.where(flips[:, axis, None], truth * signs, truth)
+    return mirror_images(target, flips), mirror_images(source, flips), truth
 
 
 def motion_loss(model: DepthModel, target: torch.Tensor, source: torch.Tensor,
@@ -114,7 +92,9 @@ def report(label: str, model: DepthModel, sets: dict[str, list[tuple[torch.Tenso
         slopes = [float(p @ q / (q @ q)) for p, q in zip(predicted.T, true.T, strict=True)]
         parts.append(f"{name} {distance:.2f}° (slope x / y / z {slopes[0]:.2f} / "
                      f"{slopes[1]:.2f} / {slopes[2]:.2f})")
-    print(f"{label}: rotation from the truth, " + "; ".join(parts), flush=True)
+    scale = float(model.motion.rotation_scale)
+    print(f"{label}: rotation from the truth, " + "; ".join(parts)
+          + f"; rotation scale {scale:.4f}", flush=True)
 
 
 def main() -> None:
@@ -133,8 +113,12 @@ def main() -> None:
                         help="also report a trained depth checkpoint's motion network")
     parser.add_argument("--init", type=Path,
                         help="start from this depth checkpoint's motion network (its preset)")
-    parser.add_argument("--correlation", action="store_true",
-                        help="train CorrelationMotion (this file) in place of MotionNet")
+    parser.add_argument("--memorise", action="store_true",
+                        help="train on the scored training triplets themselves, in batches of "
+                             "8: can the network fit them at all?")
+    parser.add_argument("--mirror", action="store_true",
+                        help="mirror each training pair left-right and up-down at random, "
+                             "its true motion with it")
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args()
     torch.manual_seed(args.seed)
@@ -144,10 +128,6 @@ def main() -> None:
         if args.init is None else load_depth_model(args.init)
     config = model.config
     size = (config.height, config.width)
-    if args.correlation:
-        if args.init is not None:
-            raise SystemExit("--correlation trains a fresh network; drop --init")
-        model.motion = CorrelationMotion(config.motion_channels)
 
     def sampler_of(paths: list[Path]) -> TripletSampler:
         sequences: list[FrameSequence] = [open_sequence(p, size) for p in expand_inputs(paths)]
@@ -170,7 +150,11 @@ def main() -> None:
     tic, rng = time.time(), np.random.default_rng([args.seed, 2])
     for step in tqdm(range(1, args.steps + 1), desc="motion on the truth", unit="step"):
         model.train()
-        loss = motion_loss(model, *pairs(train, train.draw(config.batch_size, rng)))
+        drawn = sets["training"][rng.integers(len(sets["training"]))] if args.memorise \
+            else pairs(train, train.draw(config.batch_size, rng))
+        if args.mirror:
+            drawn = mirrored_pairs(*drawn, rng)
+        loss = motion_loss(model, *drawn)
         optimiser.zero_grad()
         loss.backward()
         optimiser.step()

@@ -28,6 +28,14 @@ class DepthConfig:
     """Motion encoder: stem channels, then the four residual stages."""
     motion_blocks: tuple[int, ...] = (1, 1, 1, 1)
     """Residual blocks per motion encoder stage."""
+    motion_net: str = "stacked"
+    """Motion network: "stacked" (the two frames stacked into one encoder, as Gordon et al.)
+    or "correlation" (one encoder shared by both frames, the motion encoder's stem and first
+    stage, the correlation of their features over shifts, then convolutions of 64, 96 and 128
+    channels in every preset; learned.nets.PairCorrelation)."""
+    motion_reach: int = 4
+    """Correlation motion network: largest shift compared, in feature pixels (4 image pixels
+    each) either way."""
     min_depth: float = 0.1
     """Smallest depth the network can output (its scale is arbitrary)."""
     max_depth: float = 100.0
@@ -47,6 +55,9 @@ class DepthConfig:
     """Factor of the learning-rate drop."""
     grad_clip: float = 10.0
     """Gradient norm clip."""
+    mirror: bool = False
+    """Mirror each training triplet left-right and up-down, each with chance 1/2 (a mirrored
+    video is a video of a mirrored colon; the --maps batches stay as they are)."""
     steps: int = 6000
     """Training steps."""
     w_ssim: float = 0.85
@@ -155,6 +166,9 @@ class DepthConfig:
         if not (self.w_zoom >= 0 and self.zoom_max > 1):
             raise ValueError(f"w_zoom must be >= 0 and zoom_max > 1, got {self.w_zoom} and "
                              f"{self.zoom_max}")
+        if self.motion_net not in ("stacked", "correlation") or self.motion_reach < 1:
+            raise ValueError(f"motion_net must be 'stacked' or 'correlation' and motion_reach "
+                             f">= 1, got {self.motion_net!r} and {self.motion_reach}")
         if not self.display_gamma > 0:
             raise ValueError(f"display_gamma must be positive, got {self.display_gamma}")
         if not self.input_fps >= 0:

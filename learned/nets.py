@@ -116,18 +116,64 @@ class DepthNet(nn.Module):
         return 1.0 / (lo + (hi - lo) * disparity)
 
 
+def shift_correlation(a: torch.Tensor, b: torch.Tensor, reach: int) -> torch.Tensor:
+    """Cosine similarity of features a (B, C, h, w) with b shifted by (dy, dx), each from
+    -reach to reach: (B, (2 reach + 1)^2, h, w), channel (dy + reach) * (2 reach + 1) + dx +
+    reach holding a[..., y, x] against b[..., y + dy, x + dx] (0 beyond b's edge)."""
+    a, b = F.normalize(a, dim=1), F.normalize(b, dim=1)
+    padded = F.pad(b, (reach, reach, reach, reach))
+    height, width = a.shape[-2:]
+    side = 2 * reach + 1
+    return torch.stack([(a * padded[..., dy:dy + height, dx:dx + width]).sum(1)
+                        for dy in range(side) for dx in range(side)], 1)
+
+
+class PairCorrelation(nn.Module):
+    """The correlation motion network's features of a frame pair (B, 6, H, W): one encoder
+    for both frames (the motion encoder's stem and first stage, stride 4), the correlation of
+    their features over shifts (shift_correlation), each pixel's place in the image beside
+    it, then three strided convolutions. Returns a one-element list, as ResNetEncoder returns
+    its stages."""
+
+    def __init__(self, channels: tuple[int, ...], blocks: tuple[int, ...], reach: int):
+        super().__init__()
+        self.reach = reach
+        self.encoder = ResNetEncoder(3, channels[:2], blocks[:1])
+        layers, width = [], (2 * reach + 1) ** 2 + 2
+        for out in (64, 96, 128):
+            layers += [nn.Conv2d(width, out, 3, 2, 1), nn.BatchNorm2d(out), nn.ReLU(inplace=True)]
+            width = out
+        self.head = nn.Sequential(*layers)
+        self.width = width
+
+    def forward(self, pair: torch.Tensor) -> list[torch.Tensor]:
+        a, b = (self.encoder(frame)[-1] for frame in pair.split(3, dim=1))
+        volume = shift_correlation(a, b, self.reach)
+        height, width = a.shape[-2:]
+        y, x = torch.meshgrid(torch.linspace(-1, 1, height, device=pair.device),
+                              torch.linspace(-1, 1, width, device=pair.device), indexing="ij")
+        place = torch.stack([x, y]).to(pair.dtype).expand(len(pair), 2, height, width)
+        return [self.head(torch.cat([volume, place], 1))]
+
+
 class MotionNet(nn.Module):
     """Two frames -> 6-DoF motion from the first camera to the second, and intrinsics.
 
-    Input: (B, 6, H, W), frames i and j stacked. Output: axis-angle rotation (B, 3) and
+    Input: (B, 6, H, W), frames i and j stacked, read by one encoder or compared by
+    PairCorrelation (config.motion_net). Output: axis-angle rotation (B, 3) and
     translation (B, 3) of the transform mapping points in camera i to camera j, and
     K (B, 3, 3) in pixels of the input size.
     """
 
     def __init__(self, config: DepthConfig):
         super().__init__()
-        self.encoder = ResNetEncoder(6, config.motion_channels, config.motion_blocks)
-        width = config.motion_channels[-1]
+        if config.motion_net == "correlation":
+            self.encoder = PairCorrelation(config.motion_channels, config.motion_blocks,
+                                           config.motion_reach)
+            width = self.encoder.width
+        else:
+            self.encoder = ResNetEncoder(6, config.motion_channels, config.motion_blocks)
+            width = config.motion_channels[-1]
         self.motion = nn.Conv2d(width, 6, 1)
         self.intrinsics = nn.Conv2d(width, 4, 1)
         # Small initial motions (Gordon et al. scale them by learned factors starting at 0.01).

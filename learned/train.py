@@ -106,6 +106,21 @@ class TripletSampler:
                 torch.from_numpy(np.stack(regions))[:, None].to(device))
 
 
+def mirror_flips(size: int, rng: np.random.Generator) -> torch.Tensor:
+    """(size, 2) bool: mirror left-right, mirror up-down, each with chance 1/2."""
+    return torch.from_numpy(rng.random((size, 2)) < 0.5)
+
+
+def mirror_images(images: torch.Tensor, flips: torch.Tensor) -> torch.Tensor:
+    """Images (B, ..., H, W), each mirrored left-right where flips[:, 0] and up-down where
+    flips[:, 1]."""
+    shape = (-1,) + (1,) * (images.dim() - 1)
+    for axis, dim in enumerate((-1, -2)):
+        chosen = flips[:, axis].to(images.device).view(shape)
+        images = torch.where(chosen, images.flip(dim), images)
+    return images
+
+
 def validate(model: DepthModel, sequences: list[FrameSequence], frames_per_sequence: int = 8
              ) -> dict[str, float]:
     """Median MRE over sampled frames and focal errors, on sequences with ground truth."""
@@ -185,6 +200,9 @@ def train_depth(data: list[Path | FrameSequence], out: Path, config: DepthConfig
         rng = np.random.default_rng([config.seed, step])  # resumable sampling
         torch.manual_seed(config.seed * 1_000_003 + step)  # and resumable noise in the loss
         frames, regions = sampler.batch(config.batch_size, rng, device)
+        if config.mirror:
+            flips = mirror_flips(len(frames), rng)
+            frames, regions = mirror_images(frames, flips), mirror_images(regions, flips)
         terms = model.loss(frames, regions, chain_target=chained_rotation(teacher, frames)
                            if config.w_chain else None)
         if maps is not None:

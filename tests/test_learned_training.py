@@ -14,11 +14,12 @@ from conftest import TINY
 
 from hybrid.types import InputError
 from learned.checkpoint import export_weights, read_checkpoint, save_checkpoint
-from learned.config import DepthConfig
+from learned.checkpoints import SHIPPED_DEPTH
+from learned.config import DEPTH_PRESETS, DepthConfig
 from learned.frames import open_sequence
 from learned.model import DepthModel, load_depth_model
-from learned.nets import DepthNet
-from learned.train import TripletSampler, train_depth
+from learned.nets import DepthNet, shift_correlation
+from learned.train import TripletSampler, mirror_flips, mirror_images, train_depth
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 
@@ -38,6 +39,24 @@ def test_sampler_batch_shapes(batch, clip):
     # Triplets are gap = round(fps · pair_gap_s) ≥ 1 frames apart, so never all equal.
     assert not torch.equal(frames[:, 0], frames[:, 1])
     assert not torch.equal(frames[:, 2], frames[:, 1])
+
+
+def test_mirroring_flips_each_triplet_and_its_region_alike(batch):
+    frames, region = batch
+    frames, region = frames.repeat(20, 1, 1, 1, 1), region.repeat(20, 1, 1, 1)
+    flips = mirror_flips(len(frames), np.random.default_rng(3))
+    out_frames, out_region = mirror_images(frames, flips), mirror_images(region, flips)
+    for b, (left_right, up_down) in enumerate(flips.tolist()):
+        dims = [d for d, chosen in ((-1, left_right), (-2, up_down)) if chosen]
+        expected = frames[b].flip(dims) if dims else frames[b]
+        assert torch.equal(out_frames[b], expected)
+        assert torch.equal(out_region[b], region[b].flip(dims) if dims else region[b])
+    # Each of the four mirror images occurs.
+    assert len({tuple(f) for f in flips.tolist()}) == 4
+    # Half of the triplets on average, each axis drawn apart.
+    many = mirror_flips(4000, np.random.default_rng(4)).float()
+    assert np.allclose(many.mean(0).numpy(), 0.5, atol=0.03)
+    assert abs(float((many[:, 0] * many[:, 1]).mean()) - 0.25) < 0.03
 
 
 def test_depth_net_shape_and_range():
@@ -66,11 +85,12 @@ def test_depth_net_accepts_or_rejects_a_size_not_divisible_by_32():
         assert depth.shape == (1, 1, 64, 80)
 
 
-def test_motion_net_outputs(batch):
+@pytest.mark.parametrize("motion_net", ["stacked", "correlation"])
+def test_motion_net_outputs(batch, motion_net):
     """Shapes, and K at initialisation by hand: the intrinsics head starts at zero weights, so
     fx = softplus(−0.4)·W, fy = softplus(−0.4)·H, cx = W/2 − 0.5, cy = H/2 − 0.5."""
     torch.manual_seed(0)
-    model = DepthModel(TINY)
+    model = DepthModel(replace(TINY, motion_net=motion_net))
     frames, _ = batch
     with torch.no_grad():
         rotation, translation, K = model.motion(torch.cat([frames[:, 1], frames[:, 0]], 1))
@@ -82,6 +102,31 @@ def test_motion_net_outputs(batch):
     torch.testing.assert_close(K, expected.expand(2, 3, 3), rtol=1e-6, atol=1e-5)
     # Motions start small (scaled by 0.01) but are not identically zero.
     assert 0 < float(rotation.abs().max()) < 0.1 and 0 < float(translation.abs().max()) < 0.1
+
+
+def test_shift_correlation_peaks_at_the_shift():
+    torch.manual_seed(0)
+    a = torch.randn(2, 8, 12, 14)
+    dy, dx, reach = 1, -2, 3
+    b = torch.roll(a, shifts=(dy, dx), dims=(-2, -1))  # b[y + dy, x + dx] = a[y, x]
+    volume = shift_correlation(a, b, reach)
+    assert volume.shape == (2, 49, 12, 14)
+    inner = volume[..., reach:-reach, reach:-reach]
+    assert (inner.argmax(1) == (dy + reach) * (2 * reach + 1) + dx + reach).all()
+    torch.testing.assert_close(inner.amax(1), torch.ones_like(inner[:, 0]))
+
+
+@pytest.mark.parametrize("change", [{"motion_net": "flow"}, {"motion_reach": 0}])
+def test_a_bad_motion_network_setting_is_refused(change):
+    with pytest.raises(ValueError, match="motion_net must be"):
+        replace(TINY, **change)
+
+
+def test_the_stacked_motion_network_still_reads_the_shipped_checkpoint():
+    """The default motion network keeps the parameter names the shipped model was saved with."""
+    shipped, _ = read_checkpoint(SHIPPED_DEPTH)
+    expected = {f"motion.{k}" for k in DepthModel(DEPTH_PRESETS["fast"]).motion.state_dict()}
+    assert {k for k in shipped if k.startswith("motion.")} == expected
 
 
 def test_pair_motion_focal_lengths_stay_positive_after_training_steps(batch):
@@ -100,8 +145,9 @@ def test_pair_motion_focal_lengths_stay_positive_after_training_steps(batch):
 
 
 @pytest.mark.parametrize("config", [TINY, replace(TINY, w_shading=0.1),
-                                    replace(TINY, w_zoom=1.0)],
-                         ids=["default", "shading", "zoom"])
+                                    replace(TINY, w_zoom=1.0),
+                                    replace(TINY, motion_net="correlation")],
+                         ids=["default", "shading", "zoom", "correlation"])
 def test_optimisation_reduces_the_loss_on_a_fixed_batch(batch, config):
     torch.manual_seed(0)
     model = DepthModel(config)
@@ -161,11 +207,13 @@ def test_config_dict_round_trip():
     assert DepthConfig.from_dict(json.loads(json.dumps(config.to_dict()))) == config
 
 
-def test_train_depth_resumes_where_it_stopped(tmp_path, clip):
-    """2 steps, then the same folder with steps = 4, equals 4 steps in one go, bit for bit.
-    The resumed run keeps its own config (only the number of steps may change), and log lines
-    written after the last checkpoint are forgotten."""
-    config = replace(TINY, steps=2)
+@pytest.mark.parametrize("mirror", [False, True], ids=["plain", "mirrored"])
+def test_train_depth_resumes_where_it_stopped(tmp_path, clip, mirror):
+    """2 steps, then the same folder with steps = 4, equals 4 steps in one go, bit for bit
+    (mirrored triplets too: their flips are drawn from the step's generator). The resumed run
+    keeps its own config (only the number of steps may change), and log lines written after
+    the last checkpoint are forgotten."""
+    config = replace(TINY, steps=2, mirror=mirror)
     resumed, straight = tmp_path / "resumed", tmp_path / "straight"
     path = train_depth([clip], resumed, config, log_every=1, progress=False)
     assert path == resumed / "checkpoint.safetensors"
