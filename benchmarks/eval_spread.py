@@ -75,5 +75,6 @@ def main() -> None:
             f"{name} MAE {np.abs(e).mean():.3f} bias {np.mean(e):+.3f} ({len(e)})"
             for name, e in by_place.items() if e))
 
+
 if __name__ == "__main__":
     main()

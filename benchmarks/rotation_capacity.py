@@ -46,8 +46,9 @@ def pairs(sampler: TripletSampler, drawn: list[tuple[int, int, int]]
     targets, sources, motions = [], [], []
     for k, t, gap in drawn:
         seq = sampler.sequences[k]
+        target = seq.frame(t)
         for s in (t - gap, t + gap):
-            targets.append(seq.frame(t))
+            targets.append(target)
             sources.append(seq.frame(s))
             rotation, translation = relative_motion(seq.poses, t, s)[:2]
             motions.append(torch.cat([rotation[0], translation[0]]))
@@ -78,6 +79,11 @@ def motion_loss(model: DepthModel, target: torch.Tensor, source: torch.Tensor,
             + (1 - F.cosine_similarity(translation, truth[:, 3:], dim=1)).mean())
 
 
+def true_rotations(pairs_of_set: list[tuple[torch.Tensor, ...]]) -> np.ndarray:
+    """(N, 3) axis-angle rotations of a set's pairs, as `pairs` gives them."""
+    return torch.cat([m[:, :3] for *_, m in pairs_of_set]).numpy()
+
+
 def report(label: str, model: DepthModel, sets: dict[str, list[tuple[torch.Tensor, ...]]]
            ) -> None:
     """Per set of pairs: the rotation's L1 from the truth (degrees) and per-axis slopes."""
@@ -86,7 +92,7 @@ def report(label: str, model: DepthModel, sets: dict[str, list[tuple[torch.Tenso
     for name, pairs_of_set in sets.items():
         with torch.no_grad():
             predicted = torch.cat([model.pair_motion(t, s)[0] for t, s, _ in pairs_of_set])
-        true = torch.cat([m[:, :3] for *_, m in pairs_of_set]).numpy()
+        true = true_rotations(pairs_of_set)
         predicted = predicted.numpy()
         distance = np.degrees(np.abs(predicted - true).sum(1).mean())
         slopes = [float(p @ q / (q @ q)) for p, q in zip(predicted.T, true.T, strict=True)]
@@ -141,7 +147,7 @@ def main() -> None:
                    for _ in range(args.held_out_triplets // 8)]
             for name, sampler in (("held out", val), ("training", train))}
     for name, pairs_of_set in sets.items():
-        still = np.degrees(torch.cat([m[:, :3] for *_, m in pairs_of_set]).abs().sum(1).mean())
+        still = np.degrees(np.abs(true_rotations(pairs_of_set)).sum(1).mean())
         print(f"{name} rotation's own size (a network that never turns): {still:.2f}°")
     for path in args.model:
         report(str(path), load_depth_model(path), sets)
@@ -160,7 +166,7 @@ def main() -> None:
         optimiser.step()
         if step % args.every == 0 or step == args.steps:
             report(f"trained on the truth, step {step} ({time.time() - tic:.0f} s, last loss "
-                   f"{float(loss):.4f})", model, sets)
+                   f"{loss.item():.4f})", model, sets)
 
 
 if __name__ == "__main__":
