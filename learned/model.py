@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from contextlib import contextmanager, nullcontext
 from dataclasses import replace
 from pathlib import Path
 
@@ -101,8 +102,24 @@ class DepthModel(nn.Module):
         as the target, frame 0 as the source, as DepthModel.loss pairs them)."""
         # One batch, so that batch norm does not normalise away what all the crops share.
         both = torch.cat([views.zoomed, views.whole])
-        K = self.pair_motion(both[:, 1], both[:, 0])[-1]
+        with nullcontext() if self.config.zoom_updates_bn else frozen_bn_statistics(self.motion):
+            K = self.pair_motion(both[:, 1], both[:, 0])[-1]
         return K[:len(views.boxes)], K[len(views.boxes):]
+
+
+@contextmanager
+def frozen_bn_statistics(module: nn.Module):
+    """Batch norm in `module` normalises by each batch's statistics as in training, but its
+    running statistics stay as they are (momentum 0 for the duration)."""
+    norms = [m for m in module.modules() if isinstance(m, nn.BatchNorm2d)]
+    momenta = [m.momentum for m in norms]
+    for m in norms:
+        m.momentum = 0.0
+    try:
+        yield
+    finally:
+        for m, momentum in zip(norms, momenta, strict=True):
+            m.momentum = momentum
 
 
 @torch.no_grad()

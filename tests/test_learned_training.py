@@ -311,3 +311,21 @@ def test_exported_weights_drop_the_optimiser_and_predict_the_same(tmp_path, batc
     model.eval()
     with torch.no_grad():
         assert torch.equal(loaded.depth(frames[:, 1]), model.depth(frames[:, 1]))
+
+
+@pytest.mark.parametrize("updates", [True, False])
+def test_the_zoom_batch_updates_batch_norm_statistics_only_when_asked(batch, updates):
+    """With zoom_updates_bn=False a loss with the zoom term leaves the motion network's running
+    statistics where the same loss without it leaves them; with True it moves them."""
+    frames, region = batch
+    stats = []
+    for config in (replace(TINY, w_zoom=1.0, zoom_updates_bn=updates), TINY):
+        torch.manual_seed(0)
+        model = DepthModel(config)
+        model.train()
+        with torch.no_grad():
+            model.loss(frames, region)
+        stats.append(torch.cat([m.running_mean for m in model.motion.modules()
+                                if isinstance(m, torch.nn.BatchNorm2d)]))
+    assert torch.equal(stats[0], stats[1]) != updates
+    assert updates or float(stats[0].abs().sum()) > 0  # the ordinary frames did move them
