@@ -39,7 +39,7 @@ def main() -> None:
     for path in args.eval:
         for name, m in json.loads(path.read_text())["procedures"].items():
             rows.setdefault(Procedure.open(args.data_root / name).style, []).append(
-                (m["fx_true"], m.get("fx_head", m["fx_pred"])))
+                (m["fx_true"], m["fx_head"] if "fx_head" in m else m["fx_pred"]))
     rows["all"] = [row for values in rows.values() for row in values]
     train: dict[str, list[float]] = {}
     for folder in args.train:

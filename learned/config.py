@@ -123,9 +123,9 @@ class DepthConfig:
     log-uniform in [1, zoom_max])."""
     zoom_updates_bn: bool = True
     """Whether the zoom consistency's batch (crops, and whole frames blurred to their detail)
-    updates the motion network's batch-norm running statistics, which inference uses; False
-    keeps those the statistics of the ordinary frames (docs/depth.md: the zoom batches shifted the
-    head's focal length at inference)."""
+    updates the motion network's batch-norm running statistics, which inference uses. False
+    leaves them to the ordinary frames (docs/depth.md: the zoom batches shifted the head's
+    focal length at inference)."""
     maps: str = ""
     """Folder of structure-from-motion maps of the training inputs (`c2d2 sfm-maps`); each
     step then also draws a batch of triplets from their agreeing stretches
