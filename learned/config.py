@@ -135,6 +135,13 @@ class DepthConfig:
     w_map_motion: float = 0.0
     """Distance of the motion network's rotation, translation direction and focal length
     from the maps' on the map batch (trains the motion network and its intrinsics head)."""
+    map_zoom: bool = False
+    """The motion network's map term (w_map_motion) reads each map triplet cut to a random box
+    (learned.zoom: its size 1/s of the frame's, s log-uniform in [1, zoom_max]) and enlarged,
+    against the map's K carried through the zoom: a crop of a mapped frame is a frame of a
+    camera with s times the focal length and the same motion, so the head is pulled towards
+    more focal lengths than the training cameras'. Its frames leave batch norm's running
+    statistics alone unless zoom_updates_bn."""
     map_min_points: int = 20
     """Map points a target must see to be drawn (they set the maps' unit)."""
     seed: int = 0
@@ -168,6 +175,9 @@ class DepthConfig:
                              f"those weights need maps; got "
                              f"maps={self.maps!r}, w_map={self.w_map}, w_map_motion="
                              f"{self.w_map_motion}, map_min_points={self.map_min_points}")
+        if self.map_zoom and not self.w_map_motion:
+            raise ValueError("map_zoom zooms the map term of the motion network; it needs "
+                             "w_map_motion > 0")
         if not (self.w_zoom >= 0 and self.zoom_max > 1):
             raise ValueError(f"w_zoom must be >= 0 and zoom_max > 1, got {self.w_zoom} and "
                              f"{self.zoom_max}")

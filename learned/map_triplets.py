@@ -5,6 +5,7 @@ network and its intrinsics head (`c2d2 train-depth --maps`). No labels and no ca
 from __future__ import annotations
 
 import logging
+from contextlib import nullcontext
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import NamedTuple
@@ -21,7 +22,8 @@ from learned.config import DepthConfig
 from learned.flow import flows_to_sources
 from learned.frames import FrameSequence
 from learned.losses import LossTerms, view_synthesis_loss
-from learned.model import DepthModel, to_tensor
+from learned.model import DepthModel, frozen_bn_statistics, to_tensor
+from learned.zoom import zoom_pairs, zoomed_intrinsics
 
 log = logging.getLogger(__name__)
 Motion = tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]
@@ -152,8 +154,8 @@ def map_view_loss(depths: torch.Tensor, batch: MapBatch, config: DepthConfig
 def with_map_terms(terms: LossTerms, model: DepthModel, batch: MapBatch) -> LossTerms:
     """`terms` plus the map batch's: `w_map` times the view synthesis with the maps' motion
     and K (depth network), `w_map_motion` times the motion network's and its K's distance from
-    the maps' (`map_motion_errors`), each of the model's config; a term whose weight is 0 is
-    not computed (and logged as 0)."""
+    the maps' (`map_motion_errors`; on zoomed crops with `map_zoom`), each of the model's
+    config; a term whose weight is 0 is not computed (and logged as 0)."""
     config = model.config
     frames = batch.frames
     zero = torch.zeros((), device=frames.device)
@@ -162,26 +164,35 @@ def with_map_terms(terms: LossTerms, model: DepthModel, batch: MapBatch) -> Loss
         depths = model.depth(frames.flatten(0, 1)).unflatten(0, frames.shape[:2])
         view = map_view_loss(depths, batch, config)[0].total
     if config.w_map_motion:
-        rotation, direction, focal = map_motion_errors(*model.triplet_motion(frames), batch)
+        seen, K = frames, batch.K
+        statistics = nullcontext()
+        if config.map_zoom:
+            views = zoom_pairs(frames, config.zoom_max)
+            seen, K = views.zoomed, zoomed_intrinsics(K, views.boxes, frames.shape[-2:])
+            if not config.zoom_updates_bn:
+                statistics = frozen_bn_statistics(model.motion)
+        with statistics:
+            estimates = model.triplet_motion(seen)
+        rotation, direction, focal = map_motion_errors(*estimates, batch.motions, K)
     total = (terms.total + config.w_map * view
              + config.w_map_motion * (rotation + direction + focal))
     return replace(terms, total=total, map_view=view, map_rotation=rotation,
                    map_direction=direction, map_focal=focal)
 
 
-def map_motion_errors(estimates: list[Motion], K: torch.Tensor, batch: MapBatch
-                      ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+def map_motion_errors(estimates: list[Motion], K: torch.Tensor, motions: list[Motion],
+                      K_map: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """How far the motion network's estimates target -> previous and target -> next and its K
-    (B, 3, 3) lie from the maps': the rotation's L1 distance (axis-angle, radians, as the
-    chain term's), 1 - cos of the angle between the translations (the map's unit is free),
-    and |log| of the ratio of the focal lengths (fx and fy against the map's), each a mean
-    over the batch."""
+    (B, 3, 3) lie from the maps' `motions` and `K_map`: the rotation's L1 distance
+    (axis-angle, radians, as the chain term's), 1 - cos of the angle between the translations
+    (the map's unit is free), and |log| of the ratio of the focal lengths (fx and fy against
+    the map's), each a mean over the batch."""
     rotation = torch.stack([(est[0] - ref[0]).abs().sum(1).mean()
-                            for est, ref in zip(estimates, batch.motions, strict=True)]).mean()
+                            for est, ref in zip(estimates, motions, strict=True)]).mean()
     direction = torch.stack([1 - F.cosine_similarity(est[1], ref[1], dim=1).mean()
-                             for est, ref in zip(estimates, batch.motions, strict=True)]).mean()
+                             for est, ref in zip(estimates, motions, strict=True)]).mean()
     focal = torch.log(torch.diagonal(K[:, :2, :2], dim1=1, dim2=2)
-                      / torch.diagonal(batch.K[:, :2, :2], dim1=1, dim2=2)).abs().mean()
+                      / torch.diagonal(K_map[:, :2, :2], dim1=1, dim2=2)).abs().mean()
     return rotation, direction, focal
 
 

@@ -31,6 +31,7 @@ from learned.map_triplets import (
 )
 from learned.model import DepthModel
 from learned.train import TripletSampler, train_depth
+from learned.zoom import zoom_pairs
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 CONFIG = replace(TINY, height=HEIGHT, width=WIDTH, pair_gap_s=0.1)
@@ -120,13 +121,14 @@ def test_map_view_loss_does_not_depend_on_the_depths_unit(triplets):
 
 def test_map_motion_errors_against_hand_computed_cases(triplets):
     batch = triplets.batch(3, np.random.default_rng(2))
-    assert [float(e) for e in map_motion_errors(batch.motions, batch.K, batch)] == \
+    assert [float(e) for e in map_motion_errors(batch.motions, batch.K, batch.motions,
+                                                       batch.K)] == \
         pytest.approx([0, 0, 0], abs=1e-6)
     turned = [(r + torch.tensor([0.01, -0.02, 0.0]), -t, rb, tb)
               for r, t, rb, tb in batch.motions]
     K = batch.K.clone()
     K[:, 0, 0] *= 2
-    rotation, direction, focal = map_motion_errors(turned, K, batch)
+    rotation, direction, focal = map_motion_errors(turned, K, batch.motions, batch.K)
     assert float(rotation) == pytest.approx(0.03)
     assert float(direction) == pytest.approx(2.0)
     assert float(focal) == pytest.approx(0.5 * math.log(2))
@@ -331,3 +333,51 @@ def test_frames_with_pixels_that_are_not_square_are_mapped(tmp_path, rows, colum
                          for i, x, y, _ in mine])
         ratio = mine[:, 3] / true
         assert np.median(np.abs(ratio / np.median(ratio) - 1)) < 0.03
+
+
+def test_map_zoom_pulls_the_head_towards_the_maps_focal_length_carried_through_the_crop(
+        triplets, monkeypatch):
+    """With map_zoom the motion network reads crops of the map triplets, and a head that reads
+    the whole frames' map K from them misses by the crops' zoom; the motion is the map's."""
+    batch = triplets.batch(3, np.random.default_rng(6))
+    model = DepthModel(replace(CONFIG, maps="given", w_map_motion=1.0, map_zoom=True,
+                               zoom_max=2.0))
+    plain = model.loss(batch.frames, batch.regions)
+    seen = []
+
+    def triplet_motion(frames):
+        seen.append(frames)
+        return batch.motions, batch.K
+
+    monkeypatch.setattr(model, "triplet_motion", triplet_motion)
+    torch.manual_seed(7)
+    terms = with_map_terms(plain, model, batch)
+    torch.manual_seed(7)
+    views = zoom_pairs(batch.frames, 2.0)
+    assert torch.equal(seen[0], views.zoomed)
+    zoom = torch.stack([WIDTH / views.boxes[:, 2], HEIGHT / views.boxes[:, 3]])
+    assert float(zoom.min()) > 1.1  # the draws do zoom
+    assert [float(terms.map_rotation), float(terms.map_direction)] == pytest.approx([0, 0],
+                                                                                    abs=1e-6)
+    assert float(terms.map_focal) == pytest.approx(float(torch.log(zoom).mean()), rel=1e-5)
+
+
+@pytest.mark.parametrize("updates", [True, False])
+def test_map_zoom_updates_batch_norm_statistics_only_when_asked(triplets, updates):
+    batch = triplets.batch(2, np.random.default_rng(8))
+    model = DepthModel(replace(CONFIG, maps="given", w_map_motion=1.0, map_zoom=True,
+                               zoom_updates_bn=updates))
+    model.train()
+
+    def running_statistics() -> torch.Tensor:
+        return torch.cat([t.clone() for m in model.motion.modules()
+                          if isinstance(m, torch.nn.BatchNorm2d)
+                          for t in (m.running_mean, m.running_var)])
+
+    with torch.no_grad():
+        plain = model.loss(batch.frames, batch.regions)
+        before = running_statistics()
+        with_map_terms(plain, model, batch)
+    assert torch.equal(before, running_statistics()) != updates
+    with pytest.raises(ValueError, match="map_zoom"):
+        replace(CONFIG, maps="given", w_map=1.0, map_zoom=True)
