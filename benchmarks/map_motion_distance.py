@@ -112,7 +112,7 @@ def distances(estimates: list[tuple[list[Motion], torch.Tensor]], references: li
     """Rotation, direction and focal distance (map_motion_errors) of per-batch estimates
     (motions, K) from the references' motion and K, averaged over the batches."""
     return np.mean([[float(e) for e in map_motion_errors(*estimate, reference.motions,
-                                                              reference.K)]
+                                                         reference.K)]
                     for estimate, reference in zip(estimates, references, strict=True)], axis=0)
 
 

@@ -119,13 +119,13 @@ class DepthConfig:
     of a pair, enlarged to the full size, must be the K read from the whole pair carried
     through the zoom; 0: off."""
     zoom_max: float = 1.5
-    """Largest zoom of the zoom consistency's crops (their size 1/s of the frame's, s
-    log-uniform in [1, zoom_max])."""
+    """Largest zoom of the crops of the zoom consistency and of map_zoom (their size 1/s of
+    the frame's, s log-uniform in [1, zoom_max])."""
     zoom_updates_bn: bool = True
-    """Whether the zoom consistency's batch (crops, and whole frames blurred to their detail)
-    updates the motion network's batch-norm running statistics, which inference uses. False
-    leaves them to the ordinary frames (docs/depth.md: the zoom batches shifted the head's
-    focal length at inference)."""
+    """Whether the batches of the zoom consistency and of map_zoom (crops, and whole frames
+    blurred to their detail) update the motion network's batch-norm running statistics,
+    which inference uses. False leaves them to the ordinary frames (docs/depth.md: the zoom
+    batches shifted the head's focal length at inference)."""
     maps: str = ""
     """Folder of structure-from-motion maps of the training inputs (`c2d2 sfm-maps`); each
     step then also draws a batch of triplets from their agreeing stretches
@@ -138,10 +138,11 @@ class DepthConfig:
     map_zoom: bool = False
     """The motion network's map term (w_map_motion) reads each map triplet cut to a random box
     (learned.zoom: its size 1/s of the frame's, s log-uniform in [1, zoom_max]) and enlarged,
-    against the map's K carried through the zoom: a crop of a mapped frame is a frame of a
-    camera with s times the focal length and the same motion, so the head is pulled towards
-    more focal lengths than the training cameras'. Its frames leave batch norm's running
-    statistics alone unless zoom_updates_bn."""
+    against the map's K carried through the zoom, and the whole triplet at the crop's detail
+    against the map's K (learned.map_triplets.zoomed_map_targets): a crop of a mapped frame is
+    a frame of a camera with s times the focal length and the same motion, so the head is
+    pulled towards more focal lengths than the training cameras'. Its batch updates batch
+    norm's running statistics as zoom_updates_bn says."""
     map_min_points: int = 20
     """Map points a target must see to be drawn (they set the maps' unit)."""
     seed: int = 0
@@ -176,8 +177,8 @@ class DepthConfig:
                              f"maps={self.maps!r}, w_map={self.w_map}, w_map_motion="
                              f"{self.w_map_motion}, map_min_points={self.map_min_points}")
         if self.map_zoom and not self.w_map_motion:
-            raise ValueError("map_zoom zooms the map term of the motion network; it needs "
-                             "w_map_motion > 0")
+            raise ValueError(f"map_zoom needs w_map_motion > 0 (it zooms the motion "
+                             f"network's map term), got w_map_motion={self.w_map_motion}")
         if not (self.w_zoom >= 0 and self.zoom_max > 1):
             raise ValueError(f"w_zoom must be >= 0 and zoom_max > 1, got {self.w_zoom} and "
                              f"{self.zoom_max}")

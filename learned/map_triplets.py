@@ -154,8 +154,8 @@ def map_view_loss(depths: torch.Tensor, batch: MapBatch, config: DepthConfig
 def with_map_terms(terms: LossTerms, model: DepthModel, batch: MapBatch) -> LossTerms:
     """`terms` plus the map batch's: `w_map` times the view synthesis with the maps' motion
     and K (depth network), `w_map_motion` times the motion network's and its K's distance from
-    the maps' (`map_motion_errors`; on zoomed crops with `map_zoom`), each of the model's
-    config; a term whose weight is 0 is not computed (and logged as 0)."""
+    the maps' (`map_motion_errors`; with `map_zoom`, on `zoomed_map_targets`), each of the
+    model's config; a term whose weight is 0 is not computed (and logged as 0)."""
     config = model.config
     frames = batch.frames
     zero = torch.zeros((), device=frames.device)
@@ -164,20 +164,33 @@ def with_map_terms(terms: LossTerms, model: DepthModel, batch: MapBatch) -> Loss
         depths = model.depth(frames.flatten(0, 1)).unflatten(0, frames.shape[:2])
         view = map_view_loss(depths, batch, config)[0].total
     if config.w_map_motion:
-        seen, K = frames, batch.K
+        seen, motions, K_map = frames, batch.motions, batch.K
         statistics = nullcontext()
         if config.map_zoom:
-            views = zoom_pairs(frames, config.zoom_max)
-            seen, K = views.zoomed, zoomed_intrinsics(K, views.boxes, frames.shape[-2:])
+            seen, motions, K_map = zoomed_map_targets(batch, config.zoom_max)
             if not config.zoom_updates_bn:
                 statistics = frozen_bn_statistics(model.motion)
         with statistics:
             estimates = model.triplet_motion(seen)
-        rotation, direction, focal = map_motion_errors(*estimates, batch.motions, K)
+        rotation, direction, focal = map_motion_errors(*estimates, motions, K_map)
     total = (terms.total + config.w_map * view
              + config.w_map_motion * (rotation + direction + focal))
     return replace(terms, total=total, map_view=view, map_rotation=rotation,
                    map_direction=direction, map_focal=focal)
+
+
+def zoomed_map_targets(batch: MapBatch, zoom_max: float
+                       ) -> tuple[torch.Tensor, list[Motion], torch.Tensor]:
+    """The map term's triplets and targets for `map_zoom`: each triplet cut to a random box
+    (learned.zoom.zoom_pairs) and enlarged, with the map's K carried through the zoom (a crop
+    is a frame of a camera with a longer focal length and the same motion), then the whole
+    triplets at the crops' detail with the map's own K, so that blur does not tell the head the
+    zoom. One batch (2B, 3, 3, H, W), its motions (each the map's, twice) and K (2B, 3, 3)."""
+    views = zoom_pairs(batch.frames, zoom_max)
+    K_map = torch.cat([zoomed_intrinsics(batch.K, views.boxes, batch.frames.shape[-2:]),
+                       batch.K])
+    motions = [tuple(torch.cat([part, part]) for part in side) for side in batch.motions]
+    return torch.cat([views.zoomed, views.whole]), motions, K_map
 
 
 def map_motion_errors(estimates: list[Motion], K: torch.Tensor, motions: list[Motion],

@@ -31,7 +31,7 @@ from learned.map_triplets import (
 )
 from learned.model import DepthModel
 from learned.train import TripletSampler, train_depth
-from learned.zoom import zoom_pairs
+from learned.zoom import zoom_pairs, zoomed_intrinsics
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 CONFIG = replace(TINY, height=HEIGHT, width=WIDTH, pair_gap_s=0.1)
@@ -122,7 +122,7 @@ def test_map_view_loss_does_not_depend_on_the_depths_unit(triplets):
 def test_map_motion_errors_against_hand_computed_cases(triplets):
     batch = triplets.batch(3, np.random.default_rng(2))
     assert [float(e) for e in map_motion_errors(batch.motions, batch.K, batch.motions,
-                                                       batch.K)] == \
+                                                batch.K)] == \
         pytest.approx([0, 0, 0], abs=1e-6)
     turned = [(r + torch.tensor([0.01, -0.02, 0.0]), -t, rb, tb)
               for r, t, rb, tb in batch.motions]
@@ -234,6 +234,8 @@ def test_bad_maps_are_named(tube, tmp_path):
                    {"maps": str(maps), "w_map": -1.0}):
         with pytest.raises(ValueError, match="need w_map"):
             replace(CONFIG, **fields)
+    with pytest.raises(ValueError, match="map_zoom needs w_map_motion"):
+        replace(CONFIG, maps=str(maps), w_map=1.0, map_zoom=True)
 
 
 def test_the_commands_take_the_maps(tube, tmp_path):
@@ -335,31 +337,34 @@ def test_frames_with_pixels_that_are_not_square_are_mapped(tmp_path, rows, colum
         assert np.median(np.abs(ratio / np.median(ratio) - 1)) < 0.03
 
 
-def test_map_zoom_pulls_the_head_towards_the_maps_focal_length_carried_through_the_crop(
+def test_map_zoom_scores_crops_against_the_maps_focal_length_carried_through_the_zoom(
         triplets, monkeypatch):
-    """With map_zoom the motion network reads crops of the map triplets, and a head that reads
-    the whole frames' map K from them misses by the crops' zoom; the motion is the map's."""
+    """With map_zoom the motion network reads crops of the map triplets and the whole triplets
+    at their detail, in one batch; a head that reads each crop's focal length as the map's
+    times the zoom meets the targets, one that reads the map's whole-frame K misses by it."""
     batch = triplets.batch(3, np.random.default_rng(6))
     model = DepthModel(replace(CONFIG, maps="given", w_map_motion=1.0, map_zoom=True,
                                zoom_max=2.0))
     plain = model.loss(batch.frames, batch.regions)
-    seen = []
-
-    def triplet_motion(frames):
-        seen.append(frames)
-        return batch.motions, batch.K
-
-    monkeypatch.setattr(model, "triplet_motion", triplet_motion)
-    torch.manual_seed(7)
-    terms = with_map_terms(plain, model, batch)
     torch.manual_seed(7)
     views = zoom_pairs(batch.frames, 2.0)
-    assert torch.equal(seen[0], views.zoomed)
     zoom = torch.stack([WIDTH / views.boxes[:, 2], HEIGHT / views.boxes[:, 3]])
     assert float(zoom.min()) > 1.1  # the draws do zoom
-    assert [float(terms.map_rotation), float(terms.map_direction)] == pytest.approx([0, 0],
-                                                                                    abs=1e-6)
-    assert float(terms.map_focal) == pytest.approx(float(torch.log(zoom).mean()), rel=1e-5)
+    zoomed_K = zoomed_intrinsics(batch.K, views.boxes, (HEIGHT, WIDTH))
+    seen = []
+    for K, focal in ((torch.cat([zoomed_K, batch.K]), 0.0),
+                     (torch.cat([batch.K, batch.K]), float(torch.log(zoom).mean()) / 2)):
+        def triplet_motion(frames, K=K):
+            seen.append(frames)
+            return [tuple(torch.cat([part, part]) for part in side)
+                    for side in batch.motions], K
+
+        monkeypatch.setattr(model, "triplet_motion", triplet_motion)
+        torch.manual_seed(7)
+        terms = with_map_terms(plain, model, batch)
+        assert torch.equal(seen[-1], torch.cat([views.zoomed, views.whole]))
+        assert [float(terms.map_rotation), float(terms.map_direction),
+                float(terms.map_focal)] == pytest.approx([0, 0, focal], abs=1e-6)
 
 
 @pytest.mark.parametrize("updates", [True, False])
@@ -379,5 +384,3 @@ def test_map_zoom_updates_batch_norm_statistics_only_when_asked(triplets, update
         before = running_statistics()
         with_map_terms(plain, model, batch)
     assert torch.equal(before, running_statistics()) != updates
-    with pytest.raises(ValueError, match="map_zoom"):
-        replace(CONFIG, maps="given", w_map=1.0, map_zoom=True)
