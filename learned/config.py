@@ -145,6 +145,12 @@ class DepthConfig:
     norm's running statistics as zoom_updates_bn says."""
     map_min_points: int = 20
     """Map points a target must see to be drawn (they set the maps' unit)."""
+    bn_recompute_batches: int = 0
+    """At the end of the run, the motion network's batch-norm running statistics (which
+    inference uses) are reset and recomputed as a plain average over this many batches of
+    ordinary triplets (learned.train.recompute_motion_statistics), in place of training's
+    exponential average, which weighs the last few batches of every kind (map batches and
+    zoom crops too); 0: kept as training left them."""
     seed: int = 0
     """Random seed (initialisation and sampling)."""
     init: str = ""
@@ -176,6 +182,9 @@ class DepthConfig:
                              f"those weights need maps; got "
                              f"maps={self.maps!r}, w_map={self.w_map}, w_map_motion="
                              f"{self.w_map_motion}, map_min_points={self.map_min_points}")
+        if self.bn_recompute_batches < 0:
+            raise ValueError(f"bn_recompute_batches must be >= 0, got "
+                             f"{self.bn_recompute_batches}")
         if self.map_zoom and not self.w_map_motion:
             raise ValueError(f"map_zoom needs w_map_motion > 0 (it zooms the motion "
                              f"network's map term), got w_map_motion={self.w_map_motion}")

@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from torch import nn
 from tqdm import tqdm
 
 from hybrid.types import InputError
@@ -119,6 +120,31 @@ def mirror_images(images: torch.Tensor, flips: torch.Tensor) -> torch.Tensor:
         chosen = flips[:, axis].to(images.device).view(shape)
         images = torch.where(chosen, images.flip(dim), images)
     return images
+
+
+def recompute_motion_statistics(model: DepthModel, sampler: TripletSampler, batches: int,
+                                seed: int, device: torch.device | str = "cpu") -> None:
+    """Reset the motion network's batch-norm running statistics and average them anew, each
+    batch weighed alike, over `batches` batches of the sampler's triplets (those a run of this
+    seed draws at its first steps, unmirrored), read as DepthModel.loss reads them: no zoom
+    crops, no map batches. The model keeps its mode and the layers their momentum."""
+    norms = [m for m in model.motion.modules() if isinstance(m, nn.BatchNorm2d)]
+    momenta = [norm.momentum for norm in norms]
+    training = model.motion.training
+    for norm in norms:
+        norm.reset_running_stats()
+        norm.momentum = None  # a cumulative average
+    model.motion.train()
+    try:
+        with torch.no_grad():
+            for index in range(batches):
+                frames, _ = sampler.batch(model.config.batch_size,
+                                          np.random.default_rng([seed, index]), device)
+                model.triplet_motion(frames)
+    finally:
+        for norm, momentum in zip(norms, momenta, strict=True):
+            norm.momentum = momentum
+        model.motion.train(training)
 
 
 def validate(model: DepthModel, sequences: list[FrameSequence], frames_per_sequence: int = 8
@@ -234,6 +260,11 @@ def train_depth(data: list[Path | FrameSequence], out: Path, config: DepthConfig
                             config.to_dict(), step, optimizer)
     bar.close()
     metrics_log.close()
+    if config.bn_recompute_batches:  # resets first, so a rerun of a finished run agrees
+        recompute_motion_statistics(model, sampler, config.bn_recompute_batches, config.seed,
+                                    device)
+        save_checkpoint(path, {"depth": model.depth, "motion": model.motion},
+                        config.to_dict(), step, optimizer)
     export_weights(path, out / WEIGHTS)
     return path
 

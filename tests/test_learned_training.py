@@ -19,7 +19,13 @@ from learned.config import DEPTH_PRESETS, DepthConfig
 from learned.frames import open_sequence
 from learned.model import DepthModel, load_depth_model
 from learned.nets import DepthNet, shift_correlation
-from learned.train import TripletSampler, mirror_flips, mirror_images, train_depth
+from learned.train import (
+    TripletSampler,
+    mirror_flips,
+    mirror_images,
+    recompute_motion_statistics,
+    train_depth,
+)
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 
@@ -333,3 +339,49 @@ def test_the_zoom_batch_updates_batch_norm_statistics_only_when_asked(batch, upd
         stats.append(running_statistics(model))
     assert not torch.equal(stats[1], running_statistics(DepthModel(TINY)))  # the frames moved them
     assert torch.equal(stats[0], stats[1]) != updates
+
+
+def test_recomputed_statistics_are_the_plain_average_over_ordinary_batches(clip):
+    """recompute_motion_statistics forgets what training left and weighs its batches alike:
+    each batch-norm layer's running mean is the mean of what the layer saw in each batch."""
+    sampler = TripletSampler([open_sequence(clip, (TINY.height, TINY.width))], TINY.pair_gap_s)
+    torch.manual_seed(0)
+    model = DepthModel(TINY).eval()
+    norms = [m for m in model.motion.modules() if isinstance(m, torch.nn.BatchNorm2d)]
+    for norm in norms:
+        norm.running_mean.fill_(5.0)  # as if training had left them far off
+    seen = {norm: [] for norm in norms[:2]}
+    hooks = [norm.register_forward_hook(
+        lambda module, inputs, _: seen[module].append(inputs[0].mean((0, 2, 3))))
+        for norm in seen]
+    recompute_motion_statistics(model, sampler, 3, seed=0)
+    for hook in hooks:
+        hook.remove()
+    assert not model.motion.training and all(norm.momentum == 0.1 for norm in norms)
+    for norm, means in seen.items():
+        assert len(means) == 3 * 2  # two pairs a triplet batch (DepthModel.triplet_motion)
+        assert torch.allclose(norm.running_mean, torch.stack(means).mean(0), atol=1e-6)
+    kept = [norm.running_mean.clone() for norm in norms]
+    recompute_motion_statistics(model, sampler, 3, seed=0)
+    assert all(torch.equal(a, norm.running_mean) for a, norm in zip(kept, norms, strict=True))
+
+
+def test_train_depth_recomputes_the_statistics_at_the_end_when_asked(tmp_path, clip):
+    """The run's checkpoint and exported weights hold the recomputed statistics; training
+    itself is unchanged."""
+    config = replace(TINY, steps=2)
+    plain = train_depth([clip], tmp_path / "plain", config, progress=False)
+    asked = train_depth([clip], tmp_path / "asked", replace(config, bn_recompute_batches=3),
+                        progress=False)
+    model = load_depth_model(plain)
+    sampler = TripletSampler([open_sequence(clip, (TINY.height, TINY.width))], TINY.pair_gap_s)
+    recompute_motion_statistics(model, sampler, 3, seed=0)
+    tensors = read_checkpoint(asked)[0]
+    weights = load_depth_model(tmp_path / "asked" / "model.safetensors").motion.state_dict()
+    for name, value in model.motion.state_dict().items():
+        assert torch.equal(tensors[f"motion.{name}"], value), name
+        assert torch.equal(weights[name], value), name
+    first = "motion.encoder.stem.1.running_mean"
+    assert not torch.equal(read_checkpoint(plain)[0][first], tensors[first])  # training's own
+    with pytest.raises(ValueError, match="bn_recompute_batches"):
+        replace(TINY, bn_recompute_batches=-1)
