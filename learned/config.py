@@ -124,8 +124,9 @@ class DepthConfig:
     zoom_updates_bn: bool = True
     """Whether the batches of the zoom consistency and of map_zoom (crops, and whole frames
     blurred to their detail) update the motion network's batch-norm running statistics,
-    which inference uses. False leaves them to the ordinary frames (docs/depth.md: the zoom
-    batches shifted the head's focal length at inference)."""
+    which inference uses. False leaves them to the ordinary frames and the map batches
+    (docs/depth.md, "Batch norm's statistics recomputed": it did not remove the shift of the
+    head's focal length that those statistics cause; recomputing them did)."""
     maps: str = ""
     """Folder of structure-from-motion maps of the training inputs (`c2d2 sfm-maps`); each
     step then also draws a batch of triplets from their agreeing stretches

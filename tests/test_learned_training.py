@@ -343,24 +343,24 @@ def test_the_zoom_batch_updates_batch_norm_statistics_only_when_asked(batch, upd
 
 def test_recomputed_statistics_are_the_plain_average_over_ordinary_batches(clip):
     """recompute_motion_statistics forgets what training left and weighs its batches alike:
-    each batch-norm layer's running mean is the mean of what the layer saw in each batch."""
+    each batch-norm layer's running mean and variance are the means of the (unbiased)
+    statistics of what the layer saw in each batch."""
     sampler = TripletSampler([open_sequence(clip, (TINY.height, TINY.width))], TINY.pair_gap_s)
     torch.manual_seed(0)
     model = DepthModel(TINY).eval()
     norms = [m for m in model.motion.modules() if isinstance(m, torch.nn.BatchNorm2d)]
+    seen = {norm: [] for norm in norms}
     for norm in norms:
         norm.running_mean.fill_(5.0)  # as if training had left them far off
-    seen = {norm: [] for norm in norms[:2]}
-    hooks = [norm.register_forward_hook(
-        lambda module, inputs, _: seen[module].append(inputs[0].mean((0, 2, 3))))
-        for norm in seen]
+        norm.register_forward_hook(lambda module, inputs, _: seen[module].append(
+            (inputs[0].mean((0, 2, 3)), inputs[0].transpose(0, 1).flatten(1).var(1))))
     recompute_motion_statistics(model, sampler, 3, seed=0)
-    for hook in hooks:
-        hook.remove()
     assert not model.motion.training and all(norm.momentum == 0.1 for norm in norms)
-    for norm, means in seen.items():
-        assert len(means) == 3 * 2  # two pairs a triplet batch (DepthModel.triplet_motion)
-        assert torch.allclose(norm.running_mean, torch.stack(means).mean(0), atol=1e-6)
+    for norm, stats in seen.items():
+        assert len(stats) == 3 * 2  # two pairs a triplet batch (DepthModel.triplet_motion)
+        means, variances = (torch.stack(s).mean(0) for s in zip(*stats, strict=True))
+        assert torch.allclose(norm.running_mean, means, atol=1e-5)
+        assert torch.allclose(norm.running_var, variances, rtol=1e-4, atol=1e-6)
     kept = [norm.running_mean.clone() for norm in norms]
     recompute_motion_statistics(model, sampler, 3, seed=0)
     assert all(torch.equal(a, norm.running_mean) for a, norm in zip(kept, norms, strict=True))
@@ -377,10 +377,12 @@ def test_train_depth_recomputes_the_statistics_at_the_end_when_asked(tmp_path, c
     sampler = TripletSampler([open_sequence(clip, (TINY.height, TINY.width))], TINY.pair_gap_s)
     recompute_motion_statistics(model, sampler, 3, seed=0)
     tensors = read_checkpoint(asked)[0]
-    weights = load_depth_model(tmp_path / "asked" / "model.safetensors").motion.state_dict()
-    for name, value in model.motion.state_dict().items():
-        assert torch.equal(tensors[f"motion.{name}"], value), name
-        assert torch.equal(weights[name], value), name
+    shipped = load_depth_model(tmp_path / "asked" / "model.safetensors")
+    for part in ("depth", "motion"):
+        weights = getattr(shipped, part).state_dict()
+        for name, value in getattr(model, part).state_dict().items():
+            assert torch.equal(tensors[f"{part}.{name}"], value), name
+            assert torch.equal(weights[name], value), name
     first = "motion.encoder.stem.1.running_mean"
     assert not torch.equal(read_checkpoint(plain)[0][first], tensors[first])  # training's own
     with pytest.raises(ValueError, match="bn_recompute_batches"):
