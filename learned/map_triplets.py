@@ -22,7 +22,7 @@ from learned.config import DepthConfig
 from learned.flow import flows_to_sources
 from learned.frames import FrameSequence
 from learned.losses import LossTerms, view_synthesis_loss
-from learned.model import DepthModel, frozen_bn_statistics, to_tensor
+from learned.model import DepthModel, to_tensor
 from learned.zoom import zoom_pairs, zoomed_intrinsics
 
 log = logging.getLogger(__name__)
@@ -165,12 +165,9 @@ def with_map_terms(terms: LossTerms, model: DepthModel, batch: MapBatch) -> Loss
         view = map_view_loss(depths, batch, config)[0].total
     if config.w_map_motion:
         seen, motions, K_map = frames, batch.motions, batch.K
-        statistics = nullcontext()
         if config.map_zoom:
             seen, motions, K_map = zoomed_map_targets(batch, config.zoom_max)
-            if not config.zoom_updates_bn:
-                statistics = frozen_bn_statistics(model.motion)
-        with statistics:
+        with model.crop_batch() if config.map_zoom else nullcontext():
             estimates = model.triplet_motion(seen)
         rotation, direction, focal = map_motion_errors(*estimates, motions, K_map)
     total = (terms.total + config.w_map * view

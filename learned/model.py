@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from contextlib import contextmanager, nullcontext
+from contextlib import AbstractContextManager, contextmanager, nullcontext
 from dataclasses import replace
 from pathlib import Path
 
@@ -102,24 +102,30 @@ class DepthModel(nn.Module):
         as the target, frame 0 as the source, as DepthModel.loss pairs them)."""
         # One batch, so that batch norm does not normalise away what all the crops share.
         both = torch.cat([views.zoomed, views.whole])
-        with nullcontext() if self.config.zoom_updates_bn else frozen_bn_statistics(self.motion):
+        with self.crop_batch():
             K = self.pair_motion(both[:, 1], both[:, 0])[-1]
         return K[:len(views.boxes)], K[len(views.boxes):]
 
+    def crop_batch(self) -> AbstractContextManager:
+        """The context the crop batches (the zoom term's, map_zoom's) pass the motion network
+        in: they move its batch-norm running statistics only if config.zoom_updates_bn."""
+        return nullcontext() if self.config.zoom_updates_bn else bn_momentum(self.motion, 0.0)
+
 
 @contextmanager
-def frozen_bn_statistics(module: nn.Module):
-    """Batch norm in `module` normalises by each batch's statistics as in training, but its
-    running statistics stay as they are (momentum 0 for the duration)."""
+def bn_momentum(module: nn.Module, momentum: float | None):
+    """Batch norm in `module` with this momentum for the duration: 0 leaves the running
+    statistics as they are (training still normalises each batch by its own), None makes
+    them a cumulative average."""
     norms = [m for m in module.modules() if isinstance(m, nn.BatchNorm2d)]
     momenta = [m.momentum for m in norms]
     for m in norms:
-        m.momentum = 0.0
+        m.momentum = momentum
     try:
-        yield
+        yield norms
     finally:
-        for m, momentum in zip(norms, momenta, strict=True):
-            m.momentum = momentum
+        for m, previous in zip(norms, momenta, strict=True):
+            m.momentum = previous
 
 
 @torch.no_grad()

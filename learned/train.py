@@ -18,7 +18,6 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from torch import nn
 from tqdm import tqdm
 
 from hybrid.types import InputError
@@ -35,7 +34,13 @@ from learned.device import device_of
 from learned.frames import VIDEO_SUFFIXES, FrameSequence, open_sequence
 from learned.map_triplets import MapTriplets, with_map_terms
 from learned.metrics import intrinsics_error, mre
-from learned.model import DepthModel, chained_rotation, load_depth_model, to_tensor
+from learned.model import (
+    DepthModel,
+    bn_momentum,
+    chained_rotation,
+    load_depth_model,
+    to_tensor,
+)
 
 log = logging.getLogger(__name__)
 CHECKPOINT = "checkpoint.safetensors"
@@ -128,22 +133,17 @@ def recompute_motion_statistics(model: DepthModel, sampler: TripletSampler, batc
     batch weighed alike, over `batches` batches of the sampler's triplets (those a run of this
     seed draws at its first steps, unmirrored), read as DepthModel.loss reads them: no zoom
     crops, no map batches. The model keeps its mode and the layers their momentum."""
-    norms = [m for m in model.motion.modules() if isinstance(m, nn.BatchNorm2d)]
-    momenta = [norm.momentum for norm in norms]
     training = model.motion.training
-    for norm in norms:
-        norm.reset_running_stats()
-        norm.momentum = None  # a cumulative average
     model.motion.train()
     try:
-        with torch.no_grad():
+        with bn_momentum(model.motion, None) as norms, torch.no_grad():
+            for norm in norms:
+                norm.reset_running_stats()
             for index in range(batches):
                 frames, _ = sampler.batch(model.config.batch_size,
                                           np.random.default_rng([seed, index]), device)
                 model.triplet_motion(frames)
     finally:
-        for norm, momentum in zip(norms, momenta, strict=True):
-            norm.momentum = momentum
         model.motion.train(training)
 
 

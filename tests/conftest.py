@@ -179,6 +179,12 @@ def clip(tmp_path_factory) -> Path:
                               with_overrides(SimConfig(), length_cm=14, max_frames=30))
 
 
+def bn_running_statistics(module: torch.nn.Module) -> torch.Tensor:
+    """A copy of every batch-norm layer's running mean and variance in `module`, in one tensor."""
+    return torch.cat([t.clone() for m in module.modules() if isinstance(m, torch.nn.BatchNorm2d)
+                      for t in (m.running_mean, m.running_var)])
+
+
 @pytest.fixture
 def one_thread():
     """Keep torch on one thread: the machine is shared, and results stay deterministic."""

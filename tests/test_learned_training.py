@@ -10,7 +10,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 import torch
-from conftest import TINY
+from conftest import TINY, bn_running_statistics
 
 from hybrid.types import InputError
 from learned.checkpoint import export_weights, read_checkpoint, save_checkpoint
@@ -324,11 +324,6 @@ def test_the_zoom_batch_updates_batch_norm_statistics_only_when_asked(batch, upd
     """With zoom_updates_bn=False a loss with the zoom term leaves the motion network's running
     statistics where the same loss without it leaves them; with True it moves them."""
     frames, region = batch
-
-    def running_statistics(model: DepthModel) -> torch.Tensor:
-        return torch.cat([t for m in model.motion.modules() if isinstance(m, torch.nn.BatchNorm2d)
-                          for t in (m.running_mean, m.running_var)])
-
     stats = []
     for config in (replace(TINY, w_zoom=1.0, zoom_updates_bn=updates), TINY):
         torch.manual_seed(0)
@@ -336,8 +331,9 @@ def test_the_zoom_batch_updates_batch_norm_statistics_only_when_asked(batch, upd
         model.train()
         with torch.no_grad():
             model.loss(frames, region)
-        stats.append(running_statistics(model))
-    assert not torch.equal(stats[1], running_statistics(DepthModel(TINY)))  # the frames moved them
+        stats.append(bn_running_statistics(model.motion))
+    # the frames moved them
+    assert not torch.equal(stats[1], bn_running_statistics(DepthModel(TINY).motion))
     assert torch.equal(stats[0], stats[1]) != updates
 
 

@@ -11,7 +11,7 @@ import cv2
 import numpy as np
 import pytest
 import torch
-from conftest import TINY
+from conftest import TINY, bn_running_statistics
 from kornia.geometry.conversions import axis_angle_to_rotation_matrix
 from tube_scene import FOCAL, FRAMES, HEIGHT, WIDTH, depth, pose_at, render, wall_texture
 from typer.testing import CliRunner
@@ -373,14 +373,8 @@ def test_map_zoom_updates_batch_norm_statistics_only_when_asked(triplets, update
     model = DepthModel(replace(CONFIG, maps="given", w_map_motion=1.0, map_zoom=True,
                                zoom_updates_bn=updates))
     model.train()
-
-    def running_statistics() -> torch.Tensor:
-        return torch.cat([t.clone() for m in model.motion.modules()
-                          if isinstance(m, torch.nn.BatchNorm2d)
-                          for t in (m.running_mean, m.running_var)])
-
     with torch.no_grad():
         plain = model.loss(batch.frames, batch.regions)
-        before = running_statistics()
+        before = bn_running_statistics(model.motion)
         with_map_terms(plain, model, batch)
-    assert torch.equal(before, running_statistics()) != updates
+    assert torch.equal(before, bn_running_statistics(model.motion)) != updates
