@@ -52,10 +52,10 @@ def main() -> None:
         model = DepthModel(config).eval().to(device)
         images = torch.rand(args.batch, 3, config.height, config.width, device=device)
         with torch.no_grad():
-            depth_fps = frames_per_second(lambda m=model, x=images: m.depth(x), args.batch,
+            depth_fps = frames_per_second(lambda m=model, x=images: m.predict_depth(x), args.batch,
                                           args.seconds, device)
             both_fps = frames_per_second(
-                lambda m=model, x=images: (m.depth(x), m.pair_motion(x[:-1], x[1:])),
+                lambda m=model, x=images: (m.predict_depth(x), m.pair_motion(x[:-1], x[1:])),
                 args.batch, args.seconds, device)
         print(f"{preset:6s} {config.height}x{config.width}: depth {depth_fps:7.1f} frames/s, "
               f"depth + motion/intrinsics {both_fps:7.1f} frames/s")

@@ -152,6 +152,11 @@ class DepthConfig:
     ordinary triplets (learned.train.recompute_motion_statistics), in place of training's
     exponential average, which weighs the last few batches of every kind (map batches and
     zoom crops too); 0: kept as training left them."""
+    depth_views: int = 1
+    """Inference only: the depth read from the frame and its mirror images (1: the frame
+    alone; 2: and left-right; 4: and up-down, and both), each mirrored back, averaged in log
+    depth (DepthModel.predict_depth). Training never reads it; a finished run given another
+    value (train-depth --set depth_views=N) writes its model again with it."""
     seed: int = 0
     """Random seed (initialisation and sampling)."""
     init: str = ""
@@ -183,6 +188,8 @@ class DepthConfig:
                              f"those weights need maps; got "
                              f"maps={self.maps!r}, w_map={self.w_map}, w_map_motion="
                              f"{self.w_map_motion}, map_min_points={self.map_min_points}")
+        if self.depth_views not in (1, 2, 4):
+            raise ValueError(f"depth_views must be 1, 2 or 4, got {self.depth_views}")
         if self.bn_recompute_batches < 0:
             raise ValueError(f"bn_recompute_batches must be >= 0, got "
                              f"{self.bn_recompute_batches}")

@@ -108,7 +108,7 @@ def infer_sequence(model: DepthModel, seq: FrameSequence, gaps: tuple[int, ...] 
         ids = range(start, min(start + batch, frames.stop))
         images = to_tensor(np.stack([seq.frame(i) for i in ids]), device_of(model))
         if depth:
-            predicted = model.depth(images)[:, 0].cpu().numpy()
+            predicted = model.predict_depth(images)[:, 0].cpu().numpy()
             if depth_out is None:
                 kept.append(predicted)
             else:

@@ -29,6 +29,18 @@ class DepthModel(nn.Module):
         self.depth = DepthNet(config)
         self.motion = MotionNet(config)
 
+    def predict_depth(self, rgb: torch.Tensor) -> torch.Tensor:
+        """Depth (B, 1, H, W) of rgb (B, 3, H, W) as inference reads it: the geometric mean of
+        the depth of the frame and of its config.depth_views - 1 mirror images, each mirrored
+        back (a mirrored frame is a frame of a mirrored colon)."""
+        if self.config.depth_views == 1:
+            return self.depth(rgb)
+        mirrors = ((-1,), (-2,), (-1, -2))[:self.config.depth_views - 1]
+        log_depth = self.depth(rgb).log()
+        for dims in mirrors:
+            log_depth = log_depth + self.depth(rgb.flip(dims)).flip(dims).log()
+        return (log_depth / self.config.depth_views).exp()
+
     def pair_motion(self, a: torch.Tensor, b: torch.Tensor
                     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor,
                                torch.Tensor]:

@@ -383,3 +383,43 @@ def test_train_depth_recomputes_the_statistics_at_the_end_when_asked(tmp_path, c
     assert not torch.equal(read_checkpoint(plain)[0][first], tensors[first])  # training's own
     with pytest.raises(ValueError, match="bn_recompute_batches"):
         replace(TINY, bn_recompute_batches=-1)
+
+
+def test_depth_views_average_the_mirror_images_in_log_depth(batch):
+    """predict_depth with 4 views is the geometric mean of the depth of the frame and of its
+    three mirror images, each mirrored back, so it mirrors with its input; 1 view is the
+    network's own output."""
+    torch.manual_seed(0)
+    model = DepthModel(replace(TINY, depth_views=4)).eval()
+    images = batch[0][:, 1]
+    with torch.no_grad():
+        own = model.depth(images)
+        views = [own] + [model.depth(images.flip(d)).flip(d) for d in ((-1,), (-2,), (-1, -2))]
+        averaged = model.predict_depth(images)
+        assert torch.allclose(averaged, torch.stack(views).log().mean(0).exp(), rtol=1e-5)
+        assert not torch.allclose(averaged, own, rtol=1e-3)  # the views differ
+        for dims in ((-1,), (-2,)):
+            assert torch.allclose(model.predict_depth(images.flip(dims)), averaged.flip(dims),
+                                  rtol=1e-5)
+        two = DepthModel(replace(TINY, depth_views=2)).eval()
+        two.load_state_dict(model.state_dict())
+        assert torch.allclose(two.predict_depth(images), (own * views[1]).sqrt(), rtol=1e-5)
+        one = DepthModel(TINY).eval()
+        one.load_state_dict(model.state_dict())
+        assert torch.equal(one.predict_depth(images), own)
+    with pytest.raises(ValueError, match="depth_views"):
+        replace(TINY, depth_views=3)
+
+
+def test_a_finished_run_rerun_with_other_depth_views_writes_its_model_again(tmp_path, clip):
+    """depth_views is taken from the command line on a rerun of a finished run: the model is
+    written again with it and the same weights, and nothing is trained."""
+    config = replace(TINY, steps=2)
+    path = train_depth([clip], tmp_path, config, progress=False)
+    before = read_checkpoint(path)[0]
+    train_depth([clip], tmp_path, replace(config, depth_views=4), progress=False)
+    tensors, meta = read_checkpoint(path)
+    assert meta["step"] == 2 and meta["config"]["depth_views"] == 4
+    assert all(torch.equal(tensors[k], before[k]) for k in before)
+    assert load_depth_model(tmp_path / "model.safetensors").config == replace(config,
+                                                                              depth_views=4)
