@@ -96,7 +96,7 @@ def systematic_errors(model, procs: list[Procedure], gap_s: float) -> dict[str, 
             true = np.linalg.norm(vectors, axis=1)
             turning = true > np.radians(2.0)
             rotations += list(rotation.norm(dim=1).numpy()[turning] / true[turning])
-            depth = model.depth(b[::10])[:, 0].numpy()
+            depth = model.predict_depth(b[::10])[:, 0].numpy()
             for pred, t in zip(depth, ts[::10], strict=True):
                 gt = proc.depth(int(t))
                 ok = gt > 0

@@ -47,6 +47,7 @@ def main() -> None:
     rows: dict[str, dict[str, dict[str, float]]] = {}
     for path in procedures:
         seq = open_sequence(path, size)
+        truth = None
         for views in VIEWS:
             logs = {}
             for name, model in models.items():
@@ -56,7 +57,8 @@ def main() -> None:
             if args.ensemble:
                 logs["ensemble"] = np.mean([lg - np.median(lg, axis=(1, 2), keepdims=True)
                                             for lg in logs.values()], axis=0)
-            truth = [seq.depth(t) for t in picks]
+            if truth is None:
+                truth = [seq.depth(t) for t in picks]
             for name, lg in logs.items():
                 pred = np.exp(lg)
                 scores = [(mre(p, g, seq.region), dom(p, g, seq.region))

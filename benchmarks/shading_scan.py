@@ -74,7 +74,7 @@ def main() -> None:
             cases[f"focal x{f}"] = (truth, K * torch.tensor([[f], [f], [1.0]]))
         if model is not None:  # the model's depth, with the true K and with K scaled
             with torch.no_grad():
-                predicted = model.depth(images)
+                predicted = model.predict_depth(images)
             cases["model"] = (predicted, K)
             for f in FOCALS:
                 cases[f"model, focal x{f}"] = (predicted, K * torch.tensor([[f], [f], [1.0]]))

@@ -155,8 +155,9 @@ class DepthConfig:
     depth_views: int = 1
     """Inference only: the depth read from the frame and its mirror images (1: the frame
     alone; 2: and left-right; 4: and up-down, and both), each mirrored back, averaged in log
-    depth (DepthModel.predict_depth). Training never reads it; a finished run given another
-    value (train-depth --set depth_views=N) writes its model again with it."""
+    depth (DepthModel.predict_depth). Training and its validation never read it; a finished
+    run asked for another value (train-depth --set depth_views=N, N > 1) writes its model
+    again with it."""
     seed: int = 0
     """Random seed (initialisation and sampling)."""
     init: str = ""

@@ -157,7 +157,7 @@ def validate(model: DepthModel, sequences: list[FrameSequence], frames_per_seque
             gap = max(1, round(seq.fps * model.config.pair_gap_s))
             picks = np.linspace(gap, seq.num_frames - 1, frames_per_sequence).round().astype(int)
             images = to_tensor(np.stack([seq.frame(t) for t in picks]), device_of(model))
-            depth = model.predict_depth(images)[:, 0].cpu().numpy()
+            depth = model.depth(images)[:, 0].cpu().numpy()  # the network's own, one view
             errors += [mre(d, seq.depth(t), seq.region) for d, t in zip(depth, picks, strict=True)]
             previous = to_tensor(np.stack([seq.frame(t - gap) for t in picks]), device_of(model))
             K = model.pair_motion(previous, images)[-1].mean(0).cpu().numpy()
@@ -255,7 +255,7 @@ def train_depth(data: list[Path | FrameSequence], out: Path, config: DepthConfig
             record.update(step=step, seconds=round(time.time() - started, 1))
             metrics_log.write(json.dumps(record) + "\n")
             metrics_log.flush()
-        if step % save_every == 0 and step < config.steps:
+        if step % save_every == 0 or step == config.steps:
             save_checkpoint(path, {"depth": model.depth, "motion": model.motion},
                             config.to_dict(), step, optimizer)
     bar.close()
@@ -263,7 +263,7 @@ def train_depth(data: list[Path | FrameSequence], out: Path, config: DepthConfig
     if config.bn_recompute_batches:  # resets first, so a rerun of a finished run agrees
         recompute_motion_statistics(model, sampler, config.bn_recompute_batches, config.seed,
                                     device)
-    # also on a rerun of a finished run, whose inference settings may have changed
+    # again: the recomputed statistics, or the depth_views asked of a finished run
     save_checkpoint(path, {"depth": model.depth, "motion": model.motion}, config.to_dict(),
                     step, optimizer)
     export_weights(path, out / WEIGHTS)
@@ -289,12 +289,14 @@ def _resumed_config(saved: DepthConfig, asked: DepthConfig, step: int, path: Pat
     """The config a run resumed at `step` goes on with: its own, except --steps and a
     learning-rate drop asked for (one that differs from the preset's) that has not happened
     yet, so that the resumed run trains exactly as a fresh run with the final config would,
-    and the inference setting depth_views, which training never reads."""
+    and a depth_views asked for (one that differs from the preset's), which training never
+    reads."""
     if saved.preset != asked.preset:
         raise InputError(f"{path} holds a {saved.preset!r} run; use another --out for the "
                          f"{asked.preset!r} preset")
-    config = replace(saved, steps=asked.steps, depth_views=asked.depth_views)
     default = DEPTH_PRESETS[asked.preset]
+    config = replace(saved, steps=asked.steps, depth_views=saved.depth_views
+                     if asked.depth_views == default.depth_views else asked.depth_views)
     drop = (asked.lr_drop_step, asked.lr_drop_factor)
     if drop not in ((default.lr_drop_step, default.lr_drop_factor),
                     (saved.lr_drop_step, saved.lr_drop_factor)):
@@ -307,7 +309,7 @@ def _resumed_config(saved: DepthConfig, asked: DepthConfig, step: int, path: Pat
         config = replace(config, lr_drop_step=asked.lr_drop_step,
                          lr_drop_factor=asked.lr_drop_factor)
     if replace(asked, steps=config.steps, lr_drop_step=config.lr_drop_step,
-               lr_drop_factor=config.lr_drop_factor) != config:
+               lr_drop_factor=config.lr_drop_factor, depth_views=config.depth_views) != config:
         log.warning("%s: resuming with the run's own config; only --steps, a future "
                     "learning-rate drop and depth_views are taken from the command line", path)
     return config

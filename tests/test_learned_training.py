@@ -16,8 +16,10 @@ from hybrid.types import InputError
 from learned.checkpoint import export_weights, read_checkpoint, save_checkpoint
 from learned.checkpoints import SHIPPED_DEPTH
 from learned.config import DEPTH_PRESETS, DepthConfig
+from learned.evaluate import scored_depths
 from learned.frames import open_sequence
-from learned.model import DepthModel, load_depth_model
+from learned.infer import infer_sequence
+from learned.model import DepthModel, load_depth_model, to_tensor
 from learned.nets import DepthNet, shift_correlation
 from learned.train import (
     TripletSampler,
@@ -398,6 +400,7 @@ def test_depth_views_average_the_mirror_images_in_log_depth(batch):
         averaged = model.predict_depth(images)
         assert torch.allclose(averaged, torch.stack(views).log().mean(0).exp(), rtol=1e-5)
         assert not torch.allclose(averaged, own, rtol=1e-3)  # the views differ
+        assert not torch.allclose(averaged, torch.stack(views).mean(0), rtol=1e-5, atol=0)
         for dims in ((-1,), (-2,)):
             assert torch.allclose(model.predict_depth(images.flip(dims)), averaged.flip(dims),
                                   rtol=1e-5)
@@ -412,8 +415,9 @@ def test_depth_views_average_the_mirror_images_in_log_depth(batch):
 
 
 def test_a_finished_run_rerun_with_other_depth_views_writes_its_model_again(tmp_path, clip):
-    """depth_views is taken from the command line on a rerun of a finished run: the model is
-    written again with it and the same weights, and nothing is trained."""
+    """A depth_views asked of a finished run is written into its model, with the same weights
+    and nothing trained; a rerun that asks for none keeps it. Inference (infer_sequence, and
+    eval-depth's scored_depths) then reads the mirror views."""
     config = replace(TINY, steps=2)
     path = train_depth([clip], tmp_path, config, progress=False)
     before = read_checkpoint(path)[0]
@@ -421,5 +425,14 @@ def test_a_finished_run_rerun_with_other_depth_views_writes_its_model_again(tmp_
     tensors, meta = read_checkpoint(path)
     assert meta["step"] == 2 and meta["config"]["depth_views"] == 4
     assert all(torch.equal(tensors[k], before[k]) for k in before)
-    assert load_depth_model(tmp_path / "model.safetensors").config == replace(config,
-                                                                              depth_views=4)
+    train_depth([clip], tmp_path, config, progress=False)
+    model = load_depth_model(tmp_path / "model.safetensors")
+    assert model.config == replace(config, depth_views=4)
+    seq = open_sequence(clip, (TINY.height, TINY.width))
+    picks, scored = scored_depths(model, seq, count=3)
+    with torch.no_grad():
+        images = to_tensor(np.stack([seq.frame(t) for t in picks]))
+        views, own = model.predict_depth(images)[:, 0].numpy(), model.depth(images)[:, 0].numpy()
+    inferred = infer_sequence(model, seq, gaps=()).depth[picks]
+    assert np.allclose(scored, views, rtol=1e-5) and np.allclose(inferred, views, rtol=1e-5)
+    assert not np.allclose(views, own, rtol=1e-3)
