@@ -222,6 +222,7 @@ def train_depth(data: list[Path | FrameSequence], out: Path, config: DepthConfig
     started = time.time() - elapsed  # seconds in the log count the whole run
     bar = tqdm(total=config.steps, initial=step, desc="train-depth", unit="step",
                disable=not progress)
+    first_step = step
     while step < config.steps:
         rng = np.random.default_rng([config.seed, step])  # resumable sampling
         torch.manual_seed(config.seed * 1_000_003 + step)  # and resumable noise in the loss
@@ -263,9 +264,10 @@ def train_depth(data: list[Path | FrameSequence], out: Path, config: DepthConfig
     if config.bn_recompute_batches:  # resets first, so a rerun of a finished run agrees
         recompute_motion_statistics(model, sampler, config.bn_recompute_batches, config.seed,
                                     device)
-    # again: the recomputed statistics, or the depth_views asked of a finished run
-    save_checkpoint(path, {"depth": model.depth, "motion": model.motion}, config.to_dict(),
-                    step, optimizer)
+    if config.bn_recompute_batches or step == first_step:
+        # the recomputed statistics, or a finished run's depth_views (nothing was trained)
+        save_checkpoint(path, {"depth": model.depth, "motion": model.motion},
+                        config.to_dict(), step, optimizer)
     export_weights(path, out / WEIGHTS)
     return path
 
