@@ -66,6 +66,11 @@ class DepthConfig:
     """SSIM window (pixels)."""
     w_l1: float = 0.15
     """Weight of L1 in the photometric error."""
+    photo_blur: float = 0.0
+    """Gaussian blur (standard deviation, pixels at the network's size) of the target and the
+    sources before the photometric error compares them, 0 = off: the sensor noise of
+    low-contrast frames no longer fills the error (highlights are still found on the sharp
+    images)."""
     coarse_levels: int = 0
     """Also compare target and source at 1/2, 1/4, ... resolution (block means), averaged with
     the full-resolution error: wider-reaching gradients, less sensor noise on weak texture."""
@@ -189,6 +194,8 @@ class DepthConfig:
                              f"those weights need maps; got "
                              f"maps={self.maps!r}, w_map={self.w_map}, w_map_motion="
                              f"{self.w_map_motion}, map_min_points={self.map_min_points}")
+        if not self.photo_blur >= 0:
+            raise ValueError(f"photo_blur must be >= 0 (pixels), got {self.photo_blur}")
         if self.depth_views not in (1, 2, 4):
             raise ValueError(f"depth_views must be 1, 2 or 4, got {self.depth_views}")
         if self.bn_recompute_batches < 0:

@@ -1,19 +1,21 @@
 """View-synthesis losses (paper eq. 1; Gordon et al. 2019; monodepth2).
 
-photometric (L1 + SSIM, optionally also at coarser resolutions) with per-pixel minimum over
-sources and auto-masking, occlusion-aware depth consistency, rotation/translation cycle
-consistency, edge-aware smoothness, and optionally rigid flow against classical optical flow
-and an inverse-square shading prior (learned.shading).
+photometric (L1 + SSIM, optionally on blurred images or also at coarser resolutions) with
+per-pixel minimum over sources and auto-masking, occlusion-aware depth consistency,
+rotation/translation cycle consistency, edge-aware smoothness, and optionally rigid flow
+against classical optical flow and an inverse-square shading prior (learned.shading).
 Endoscopy helps: per-pair brightness match, specular and border masks, and an optional
 inverse-square correction for the light that moves with the camera.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import torch
 import torch.nn.functional as F
+from kornia.filters import gaussian_blur2d
 from kornia.losses import inverse_depth_smoothness_loss
 from kornia.metrics import ssim
 
@@ -30,6 +32,15 @@ def photometric_error(a: torch.Tensor, b: torch.Tensor, config: DepthConfig) -> 
     l1 = (a - b).abs().mean(1, keepdim=True)
     dssim = ((1 - ssim(a, b, config.ssim_window)) / 2).clamp(0, 1).mean(1, keepdim=True)
     return config.w_ssim * dssim + config.w_l1 * l1
+
+
+def denoised(image: torch.Tensor, config: DepthConfig) -> torch.Tensor:
+    """The image as the photometric error sees it: blurred by config.photo_blur (or as is)."""
+    sigma = config.photo_blur
+    if sigma == 0:
+        return image
+    size = 2 * math.ceil(3 * sigma) + 1  # the reach `highlights` grows by
+    return gaussian_blur2d(image, (size, size), (sigma, sigma), border_type="replicate")
 
 
 def _coarse_error(source: torch.Tensor, target: torch.Tensor, w: Warp, mask: torch.Tensor,
@@ -88,10 +99,16 @@ def match_brightness(warped: torch.Tensor, target: torch.Tensor, mask: torch.Ten
     return (warped - mean_w) * (std_t / std_w).detach() + mean_t.detach()
 
 
-def specular(image: torch.Tensor) -> torch.Tensor:
-    """(B, 1, H, W) bool mask of near-white highlights, grown by one pixel."""
+def specular(image: torch.Tensor, grow: int = 1) -> torch.Tensor:
+    """(B, 1, H, W) bool mask of near-white highlights, grown by `grow` pixels."""
     bright = (image.mean(1, keepdim=True) > _SPECULAR_THRESHOLD).float()
-    return torch.nn.functional.max_pool2d(bright, 3, 1, 1) > 0
+    return torch.nn.functional.max_pool2d(bright, 2 * grow + 1, 1, grow) > 0
+
+
+def highlights(image: torch.Tensor, config: DepthConfig) -> torch.Tensor:
+    """Highlights of a sharp image, grown by the reach of the photo_blur kernel as well, so
+    that no compared pixel holds their blurred light."""
+    return specular(image, 1 + math.ceil(3 * config.photo_blur))
 
 
 def flow_error(where: torch.Tensor, flow: torch.Tensor, trusted: torch.Tensor,
@@ -159,27 +176,31 @@ def view_synthesis_loss(
         raise ValueError("w_flow > 0 needs the optical flows of the target to each source")
     usable = region.bool()
     if config.specular_mask:
-        usable = usable & ~specular(target)
+        usable = usable & ~highlights(target, config)
+    seen_target = denoised(target, config)
     errors, identity_errors = [], []
     consistency, rot_cycle, trans_cycle, flow_errors = [], [], [], []
     for k, (source, source_depth, (r_ts, t_ts, r_st, t_st)) in enumerate(zip(
             sources, source_depths, motions, strict=True)):
         T_ts = transform_from(r_ts, t_ts)
         T_st = transform_from(r_st, t_st)
-        w = warp(source, target_depth, T_ts, K, source_depth)
-        compared = usable & ~specular(w.image) if config.specular_mask else usable
+        seen_source = denoised(source, config)
+        both = source if seen_source is source else torch.cat([source, seen_source], 1)
+        w = warp(both, target_depth, T_ts, K, source_depth)
+        sharp, seen = w.image[:, :3], w.image[:, -3:]
+        compared = usable & ~highlights(sharp, config) if config.specular_mask else usable
         mask = compared & w.valid
         if config.mask_out_of_view:
             compared = mask
-        image = _relit(w.image, w.ray_ratio, config)
+        image = _relit(seen, w.ray_ratio, config)
         if config.brightness_match:
-            image = match_brightness(image, target, mask)
-        levels = [photometric_error(image, target, config)]
-        levels += [_coarse_error(source, target, w, mask, level, config, levels[0])
+            image = match_brightness(image, seen_target, mask)
+        levels = [photometric_error(image, seen_target, config)]
+        levels += [_coarse_error(seen_source, seen_target, w, mask, level, config, levels[0])
                    for level in range(1, config.coarse_levels + 1)]
         error = torch.stack(levels).mean(0)
         errors.append(torch.where(compared, error, torch.full_like(error, 1e3)))
-        identity_errors.append(_identity_error(source, target, config))
+        identity_errors.append(_identity_error(seen_source, seen_target, config))
         consistency.append(_depth_consistency(w, mask))
         if config.w_flow > 0:  # steers motion and K only: the flow's errors would bend depth
             rigid = project(target_depth.detach(), T_ts, K)[2]

@@ -288,6 +288,46 @@ def test_view_synthesis_loss_with_coarse_levels_prefers_the_true_motion(scene):
                                          rel=0.05)
 
 
+def test_photo_blur_lifts_the_truth_out_of_sensor_noise(scene):
+    """Independent noise on both views fills the error at the truth; blurred before the
+    comparison (photo_blur), the true pose stands out against a 1.5x translation by much more.
+    A small highlight in the source is masked with all the pixels its blurred light reaches:
+    how bright it is changes nothing."""
+    from kornia.geometry.conversions import rotation_matrix_to_axis_angle
+
+    from learned.losses import view_synthesis_loss
+
+    _, source_depth, _ = render(R_TRUE, T_TRUE)
+    generator = torch.Generator().manual_seed(0)
+    target, source = (x + 0.05 * torch.randn(x.shape, generator=generator)
+                      for x in (scene["target"], scene["source"]))
+
+    def loss(t: np.ndarray, blur: float, source: torch.Tensor = source) -> float:
+        T = matrix(R_TRUE, t)
+        back = torch.linalg.inv(T)
+        motion = (rotation_matrix_to_axis_angle(T[:, :3, :3]), T[:, :3, 3],
+                  rotation_matrix_to_axis_angle(back[:, :3, :3]), back[:, :3, 3])
+        torch.manual_seed(0)
+        config = replace(DepthConfig(), height=H, width=W, photo_blur=blur, automask=False)
+        return float(view_synthesis_loss(
+            target, [source], scene["depth"], [as_t(source_depth)[None, None]], [motion],
+            intrinsics(), torch.ones(1, 1, H, W), config).photometric)
+
+    sharp = loss(1.5 * T_TRUE, 0.0) / loss(T_TRUE, 0.0)
+    blurred = loss(1.5 * T_TRUE, 1.5) / loss(T_TRUE, 1.5)
+    assert sharp > 1.0 and blurred > 1.5 * sharp
+    highlights = [source.clone(), source.clone()]
+    highlights[0][..., 19:22, 29:32], highlights[1][..., 19:22, 29:32] = 0.97, 1.0
+    assert loss(T_TRUE, 1.5, highlights[0]) == pytest.approx(loss(T_TRUE, 1.5, highlights[1]),
+                                                             rel=1e-4)
+    assert loss(T_TRUE, 1.5, highlights[0]) != pytest.approx(loss(T_TRUE, 1.5), rel=1e-3)
+
+
+def test_photo_blur_must_not_be_negative():
+    with pytest.raises(ValueError, match="photo_blur must be >= 0"):
+        replace(DepthConfig(), photo_blur=-1.0)
+
+
 def test_coarse_levels_need_a_size_they_divide():
     assert replace(DepthConfig(), coarse_levels=3).coarse_levels == 3  # 128x160
     with pytest.raises(ValueError, match="divisible by 64"):
