@@ -134,11 +134,13 @@ def main() -> None:
                         help="add train-depth's loss with the frozen motion network (sfm)")
     parser.add_argument("--motion-from", type=Path,
                         default=Path("learned/checkpoints/depth-fast.safetensors"))
+    parser.add_argument("--photo-blur", type=float, default=0.0,
+                        help="train-depth's photo_blur (pixels) for the view-synthesis signals")
     args = parser.parse_args()
     if args.signal != "sfm" and (args.maps or args.sparse_weight or args.mixed):
         parser.error("--maps, --sparse-weight and --mixed are for --signal sfm")
     model = load_depth_model(args.motion_from, "fast")
-    config = DepthConfig(seed=args.seed, steps=args.steps)
+    config = DepthConfig(seed=args.seed, steps=args.steps, photo_blur=args.photo_blur)
     torch.manual_seed(config.seed)
     model.depth = DepthNet(config)  # train-depth's random start
     if args.init:

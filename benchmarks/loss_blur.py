@@ -5,7 +5,8 @@ For triplets every `--every` frames of simulated procedures, the photometric ter
 learned.losses.view_synthesis_loss (default config but photo_blur: brightness match,
 highlights, per-pixel minimum, auto-masking) at the true depth, motion and K, and its ratio
 when they are spoiled as in depth_diagnosis.py (depth^0.63 and ^0.8 about the median, focal
-x0.8, rotation x0.65). Larger ratios: a loss that singles out the truth more sharply.
+x0.8, rotation x0.65). Larger ratios: a loss that singles out the truth more sharply; the
+increase itself (in brackets) is what the gradients of the spoiled quantity scale with.
 
     .venv/bin/python benchmarks/loss_blur.py --data data/val --blur 0 1 1.5 2
 """
@@ -43,7 +44,7 @@ def main() -> None:
                         loss_of(frames, depths, motions, K, config, **spoil)["photometric"])
             base = np.mean(rows["truth"])
             print(f"{style} ({len(chosen)} procedures), photo_blur {blur:g}: truth {base:.4f}  "
-                  + "  ".join(f"{k} x{np.mean(v) / base:.3f}"
+                  + "  ".join(f"{k} x{np.mean(v) / base:.3f} (+{np.mean(v) - base:.5f})"
                               for k, v in rows.items() if k != "truth"), flush=True)
 
 
