@@ -14,7 +14,6 @@ increase itself (in brackets) is what the gradients of the spoiled quantity scal
 from __future__ import annotations
 
 import argparse
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -35,7 +34,7 @@ def main() -> None:
     for style in sorted({p.style for p in procs}):
         chosen = [p for p in procs if p.style == style]
         for blur in args.blur:
-            config = replace(DepthConfig(), photo_blur=blur)
+            config = DepthConfig(photo_blur=blur)
             rows: dict[str, list[float]] = {"truth": [], **{k: [] for k in SPOILED}}
             for _, frames, depths, motions, K in triplets(chosen, config.pair_gap_s, args.every):
                 rows["truth"].append(loss_of(frames, depths, motions, K, config)["photometric"])

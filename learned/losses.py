@@ -34,12 +34,17 @@ def photometric_error(a: torch.Tensor, b: torch.Tensor, config: DepthConfig) -> 
     return config.w_ssim * dssim + config.w_l1 * l1
 
 
+def _blur_reach(config: DepthConfig) -> int:
+    """Pixels the photo_blur kernel reaches on each side (3 standard deviations)."""
+    return math.ceil(3 * config.photo_blur)
+
+
 def denoised(image: torch.Tensor, config: DepthConfig) -> torch.Tensor:
     """The image as the photometric error sees it: blurred by config.photo_blur (or as is)."""
     sigma = config.photo_blur
     if sigma == 0:
         return image
-    size = 2 * math.ceil(3 * sigma) + 1  # the reach `highlights` grows by
+    size = 2 * _blur_reach(config) + 1
     return gaussian_blur2d(image, (size, size), (sigma, sigma), border_type="replicate")
 
 
@@ -108,7 +113,7 @@ def specular(image: torch.Tensor, grow: int = 1) -> torch.Tensor:
 def highlights(image: torch.Tensor, config: DepthConfig) -> torch.Tensor:
     """Highlights of a sharp image, grown by the reach of the photo_blur kernel as well, so
     that no compared pixel holds their blurred light."""
-    return specular(image, 1 + math.ceil(3 * config.photo_blur))
+    return specular(image, 1 + _blur_reach(config))
 
 
 def flow_error(where: torch.Tensor, flow: torch.Tensor, trusted: torch.Tensor,
@@ -185,6 +190,7 @@ def view_synthesis_loss(
         T_ts = transform_from(r_ts, t_ts)
         T_st = transform_from(r_st, t_st)
         seen_source = denoised(source, config)
+        # one warp for the sharp source (its highlights) and the blurred one (compared)
         both = source if seen_source is source else torch.cat([source, seen_source], 1)
         w = warp(both, target_depth, T_ts, K, source_depth)
         sharp, seen = w.image[:, :3], w.image[:, -3:]

@@ -262,25 +262,32 @@ def test_coarse_levels_keep_the_full_error_where_a_block_is_not_wholly_usable(sc
     assert (error[..., :8, :] != 7.0).all() and (error[..., 12:, :] != 7.0).all()
 
 
-def test_view_synthesis_loss_with_coarse_levels_prefers_the_true_motion(scene):
-    """The whole loss, one source, with coarse_levels = 2: the true pose beats a 1.5x
-    translation (the coarse path runs inside the per-pixel minimum and auto-masking)."""
+def photometric_loss(target: torch.Tensor, source: torch.Tensor, target_depth: torch.Tensor,
+                     t: np.ndarray, config: DepthConfig) -> float:
+    """The photometric term of the whole loss, one source seen with the true rotation and
+    translation t (both orders), the true K and the source's true depth."""
     from kornia.geometry.conversions import rotation_matrix_to_axis_angle
 
     from learned.losses import view_synthesis_loss
 
     _, source_depth, _ = render(R_TRUE, T_TRUE)
+    T = matrix(R_TRUE, t)
+    back = torch.linalg.inv(T)
+    motion = (rotation_matrix_to_axis_angle(T[:, :3, :3]), T[:, :3, 3],
+              rotation_matrix_to_axis_angle(back[:, :3, :3]), back[:, :3, 3])
+    torch.manual_seed(0)  # the auto-mask's tie-breaking noise
+    return float(view_synthesis_loss(
+        target, [source], target_depth, [as_t(source_depth)[None, None]], [motion],
+        intrinsics(), torch.ones(1, 1, H, W), config).photometric)
+
+
+def test_view_synthesis_loss_with_coarse_levels_prefers_the_true_motion(scene):
+    """The whole loss, one source, with coarse_levels = 2: the true pose beats a 1.5x
+    translation (the coarse path runs inside the per-pixel minimum and auto-masking)."""
     config = replace(DepthConfig(), height=H, width=W, coarse_levels=2)
 
     def loss(t: np.ndarray, config: DepthConfig = config) -> float:
-        T = matrix(R_TRUE, t)
-        back = torch.linalg.inv(T)
-        motion = (rotation_matrix_to_axis_angle(T[:, :3, :3]), T[:, :3, 3],
-                  rotation_matrix_to_axis_angle(back[:, :3, :3]), back[:, :3, 3])
-        torch.manual_seed(0)
-        return float(view_synthesis_loss(
-            scene["target"], [scene["source"]], scene["depth"], [as_t(source_depth)[None, None]],
-            [motion], intrinsics(), torch.ones(1, 1, H, W), config).photometric)
+        return photometric_loss(scene["target"], scene["source"], scene["depth"], t, config)
 
     assert loss(1.5 * T_TRUE) > 2 * loss(T_TRUE)
     # ... and the coarse levels are in it: the same loss at full resolution only differs.
@@ -293,25 +300,13 @@ def test_photo_blur_lifts_the_truth_out_of_sensor_noise(scene):
     comparison (photo_blur), the true pose stands out against a 1.5x translation by much more.
     A small highlight in the source is masked with all the pixels its blurred light reaches:
     how bright it is changes nothing."""
-    from kornia.geometry.conversions import rotation_matrix_to_axis_angle
-
-    from learned.losses import view_synthesis_loss
-
-    _, source_depth, _ = render(R_TRUE, T_TRUE)
     generator = torch.Generator().manual_seed(0)
     target, source = (x + 0.05 * torch.randn(x.shape, generator=generator)
                       for x in (scene["target"], scene["source"]))
 
     def loss(t: np.ndarray, blur: float, source: torch.Tensor = source) -> float:
-        T = matrix(R_TRUE, t)
-        back = torch.linalg.inv(T)
-        motion = (rotation_matrix_to_axis_angle(T[:, :3, :3]), T[:, :3, 3],
-                  rotation_matrix_to_axis_angle(back[:, :3, :3]), back[:, :3, 3])
-        torch.manual_seed(0)
         config = replace(DepthConfig(), height=H, width=W, photo_blur=blur, automask=False)
-        return float(view_synthesis_loss(
-            target, [source], scene["depth"], [as_t(source_depth)[None, None]], [motion],
-            intrinsics(), torch.ones(1, 1, H, W), config).photometric)
+        return photometric_loss(target, source, scene["depth"], t, config)
 
     sharp = loss(1.5 * T_TRUE, 0.0) / loss(T_TRUE, 0.0)
     blurred = loss(1.5 * T_TRUE, 1.5) / loss(T_TRUE, 1.5)
