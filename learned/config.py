@@ -71,6 +71,9 @@ class DepthConfig:
     sources before the photometric error compares them, 0 = off: the sensor noise of
     low-contrast frames no longer fills the error (highlights are still found on the sharp
     images)."""
+    photo_blur_on: str = "all"
+    """Which view synthesis photo_blur blurs: "all", or "maps" (only the --maps batches', whose
+    motion and K come from the maps, so that the motion network learns from sharp images)."""
     coarse_levels: int = 0
     """Also compare target and source at 1/2, 1/4, ... resolution (block means), averaged with
     the full-resolution error: wider-reaching gradients, less sensor noise on weak texture."""
@@ -196,6 +199,11 @@ class DepthConfig:
                              f"{self.w_map_motion}, map_min_points={self.map_min_points}")
         if not self.photo_blur >= 0:
             raise ValueError(f"photo_blur must be >= 0 (pixels), got {self.photo_blur}")
+        if self.photo_blur_on not in ("all", "maps") or (self.photo_blur_on == "maps"
+                                                         and not self.w_map):
+            raise ValueError(f"photo_blur_on must be 'all' or 'maps', and 'maps' needs the "
+                             f"maps' view term (w_map > 0); got {self.photo_blur_on!r} with "
+                             f"w_map={self.w_map}")
         if self.depth_views not in (1, 2, 4):
             raise ValueError(f"depth_views must be 1, 2 or 4, got {self.depth_views}")
         if self.bn_recompute_batches < 0:
@@ -220,6 +228,11 @@ class DepthConfig:
         """Learning rate of training step `step` (counted from 0)."""
         dropped = 0 < self.lr_drop_step <= step
         return self.learning_rate * (self.lr_drop_factor if dropped else 1.0)
+
+    def ordinary_view(self) -> DepthConfig:
+        """The config of the ordinary batches' view synthesis: without photo_blur where
+        photo_blur_on keeps it to the maps' batches."""
+        return replace(self, photo_blur=0.0) if self.photo_blur_on == "maps" else self
 
     def to_dict(self) -> dict:
         return asdict(self)

@@ -92,7 +92,7 @@ class DepthModel(nn.Module):
         motions, K = self.triplet_motion(frames)
         sources = [frames[:, 0], frames[:, 2]]
         terms = view_synthesis_loss(target, sources, depths[:, 1], [depths[:, 0], depths[:, 2]],
-                                    motions, K, region, self.config,
+                                    motions, K, region, self.config.ordinary_view(),
                                     flows_to_sources(target, sources, self.config))
         if self.config.w_chain:
             if chain_target is None:

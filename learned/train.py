@@ -256,6 +256,14 @@ def train_depth(data: list[Path | FrameSequence], out: Path, config: DepthConfig
             record.update(step=step, seconds=round(time.time() - started, 1))
             metrics_log.write(json.dumps(record) + "\n")
             metrics_log.flush()
+        if record.get("smoothness") == 0.0:  # a mean of terms >= 0: every depth map was flat
+            bar.close()
+            metrics_log.close()
+            raise InputError(
+                f"{out}: the depth network collapsed at steps {step - log_every + 1}-{step}: "
+                f"each of its depth maps was one constant (its output saturated, from which "
+                f"training does not bring it back). Start a new run in another --out with "
+                f"another --seed (docs/depth.md, \"Blurred images in the photometric error\")")
         if step % save_every == 0 or step == config.steps:
             save_checkpoint(path, {"depth": model.depth, "motion": model.motion},
                             config.to_dict(), step, optimizer)

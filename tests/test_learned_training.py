@@ -302,6 +302,24 @@ def test_a_new_run_can_start_from_a_trained_model(tmp_path, clip):
         assert same == (name == "tuned")
 
 
+def test_a_collapsed_depth_network_stops_training_with_a_clear_error(tmp_path, clip, batch):
+    """A depth head saturated at min_depth (as a real run's became, docs/depth.md) gives flat
+    depth maps and no gradient: train-depth stops at the first log with an error saying so."""
+    model = DepthModel(TINY)
+    with torch.no_grad():
+        model.depth.head[1].bias += 100.0
+    assert torch.equal(model.depth(batch[0][:, 1]), torch.full_like(batch[0][:, 1, :1],
+                                                                     TINY.min_depth))
+    save_checkpoint(tmp_path / "flat.ckpt", {"depth": model.depth, "motion": model.motion},
+                    TINY.to_dict(), 0)
+    export_weights(tmp_path / "flat.ckpt", tmp_path / "flat.safetensors")
+    config = replace(TINY, steps=6, init=str(tmp_path / "flat.safetensors"))
+    with pytest.raises(InputError, match=r"collapsed at steps 1-2: each of its depth maps"):
+        train_depth([clip], tmp_path / "run", config, log_every=2, progress=False)
+    records = [json.loads(line) for line in (tmp_path / "run" / "metrics.jsonl").open()]
+    assert [(r["step"], r["smoothness"]) for r in records] == [(2, 0.0)]
+
+
 def test_exported_weights_drop_the_optimiser_and_predict_the_same(tmp_path, batch):
     model = DepthModel(TINY)
     optimizer = torch.optim.Adam(model.parameters(), lr=1e-3)

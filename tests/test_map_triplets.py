@@ -378,3 +378,37 @@ def test_map_zoom_updates_batch_norm_statistics_only_when_asked(triplets, update
         before = bn_running_statistics(model.motion)
         with_map_terms(plain, model, batch)
     assert torch.equal(before, bn_running_statistics(model.motion)) != updates
+
+
+def test_photo_blur_on_maps_blurs_only_the_maps_view_synthesis(triplets):
+    """With photo_blur_on="maps" the ordinary loss is the sharp one, bit for bit, and the map
+    batch's view term is the blurred one (which differs from the sharp one)."""
+    batch = triplets.batch(2, np.random.default_rng(6))
+    torch.manual_seed(0)
+    blurred = DepthModel(replace(CONFIG, maps="given", w_map=1.0, photo_blur=1.5,
+                                 photo_blur_on="maps"))
+    sharp = DepthModel(replace(blurred.config, photo_blur=0.0))
+    sharp.load_state_dict(blurred.state_dict())
+
+    def terms(model, blur_all=False):
+        if blur_all:
+            model.config = replace(model.config, photo_blur_on="all")
+        torch.manual_seed(1)
+        with torch.no_grad():
+            return with_map_terms(model.loss(batch.frames, batch.regions), model, batch)
+
+    on_maps = terms(blurred)
+    plain = terms(sharp)
+    assert float(on_maps.photometric) == float(plain.photometric)
+    everywhere = terms(blurred, blur_all=True)
+    assert float(on_maps.map_view) == pytest.approx(float(everywhere.map_view), rel=1e-6)
+    assert float(everywhere.photometric) != pytest.approx(float(plain.photometric), rel=0.05)
+    assert float(on_maps.map_view) != pytest.approx(float(plain.map_view), rel=0.05)
+
+
+@pytest.mark.parametrize("settings", [{"photo_blur_on": "ordinary"},
+                                      {"photo_blur_on": "maps", "maps": "given",
+                                       "w_map_motion": 1.0}])
+def test_photo_blur_on_is_checked(settings):
+    with pytest.raises(ValueError, match="photo_blur_on must be 'all' or 'maps'"):
+        replace(CONFIG, photo_blur=1.5, **settings)
