@@ -125,8 +125,9 @@ def main() -> None:
     args = parser.parse_args()
     torch.set_num_threads(1)
     model = load_depth_model(args.model)
-    # The view-synthesis loss only (a chain-trained model's loss would need chain targets).
-    model.config = replace(model.config, w_chain=0.0)
+    # The view-synthesis loss only (a chain-trained model's loss would need chain targets),
+    # of the ordinary batches (whose photo_blur photo_blur_on may leave out).
+    model.config = replace(model.config, w_chain=0.0).ordinary_view()
     procs = [p for d in args.data for p in list_procedures(d)]
     truth, predicted = [], []
     for _, frames, depths, motions, K in triplets(procs, model.config.pair_gap_s, args.every):

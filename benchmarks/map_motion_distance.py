@@ -124,7 +124,7 @@ def loss_towards_truth(model: DepthModel, batch: MapBatch, truth: MapBatch,
     with the true K too; and per pair the cosine between the loss's negative gradient on the
     rotation and the way from the model's rotation to the true one. estimate: the model's
     triplet_motion of the batch."""
-    frames, config = batch.frames, model.config
+    frames, config = batch.frames, model.config.ordinary_view()  # the loss it trained on
     motions, K = estimate
     with torch.no_grad():
         depths = model.depth(frames.flatten(0, 1)).unflatten(0, frames.shape[:2])

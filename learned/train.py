@@ -216,59 +216,56 @@ def train_depth(data: list[Path | FrameSequence], out: Path, config: DepthConfig
             load_depth_model(Path(config.init), config.preset, device)
         model.load_state_dict(init.state_dict())
     (out / "config.json").write_text(json.dumps(config.to_dict(), indent=1) + "\n")
-    metrics_log = (out / "metrics.jsonl").open("a")
     model.train()
     running: dict[str, float] = {}
     started = time.time() - elapsed  # seconds in the log count the whole run
-    bar = tqdm(total=config.steps, initial=step, desc="train-depth", unit="step",
-               disable=not progress)
     first_step = step
-    while step < config.steps:
-        rng = np.random.default_rng([config.seed, step])  # resumable sampling
-        torch.manual_seed(config.seed * 1_000_003 + step)  # and resumable noise in the loss
-        frames, regions = sampler.batch(config.batch_size, rng, device)
-        if config.mirror:
-            flips = mirror_flips(len(frames), rng)
-            frames, regions = mirror_images(frames, flips), mirror_images(regions, flips)
-        terms = model.loss(frames, regions, chain_target=chained_rotation(teacher, frames)
-                           if config.w_chain else None)
-        if maps is not None:
-            terms = with_map_terms(terms, model, maps.batch(
-                config.batch_size, np.random.default_rng([config.seed, step, 1]), device))
-        optimizer.zero_grad()
-        terms.total.backward()
-        for group in optimizer.param_groups:
-            group["lr"] = config.lr_at(step)
-        torch.nn.utils.clip_grad_norm_(model.parameters(), config.grad_clip)
-        optimizer.step()
-        step += 1
-        bar.update(1)
-        for k, v in terms.as_floats().items():
-            running[k] = running.get(k, 0.0) + v
-        record: dict[str, float] = {}
-        if step % log_every == 0:
-            record = {k: v / log_every for k, v in running.items()}
-            running = {}
-            bar.set_postfix(loss=f"{record['total']:.4f}")
-        if val_sequences and (step % val_every == 0 or step == config.steps):
-            record.update(validate(model, val_sequences))
-        if record:
-            record.update(step=step, seconds=round(time.time() - started, 1))
-            metrics_log.write(json.dumps(record) + "\n")
-            metrics_log.flush()
-        if record.get("smoothness") == 0.0:  # a mean of terms >= 0: every depth map was flat
-            bar.close()
-            metrics_log.close()
-            raise InputError(
-                f"{out}: the depth network collapsed at steps {step - log_every + 1}-{step}: "
-                f"each of its depth maps was one constant (its output saturated, from which "
-                f"training does not bring it back). Start a new run in another --out with "
-                f"another --seed (docs/depth.md, \"Blurred images in the photometric error\")")
-        if step % save_every == 0 or step == config.steps:
-            save_checkpoint(path, {"depth": model.depth, "motion": model.motion},
-                            config.to_dict(), step, optimizer)
-    bar.close()
-    metrics_log.close()
+    with (out / "metrics.jsonl").open("a") as metrics_log, \
+            tqdm(total=config.steps, initial=step, desc="train-depth", unit="step",
+                 disable=not progress) as bar:
+        while step < config.steps:
+            rng = np.random.default_rng([config.seed, step])  # resumable sampling
+            torch.manual_seed(config.seed * 1_000_003 + step)  # and resumable noise in the loss
+            frames, regions = sampler.batch(config.batch_size, rng, device)
+            if config.mirror:
+                flips = mirror_flips(len(frames), rng)
+                frames, regions = mirror_images(frames, flips), mirror_images(regions, flips)
+            terms = model.loss(frames, regions, chain_target=chained_rotation(teacher, frames)
+                               if config.w_chain else None)
+            if maps is not None:
+                terms = with_map_terms(terms, model, maps.batch(
+                    config.batch_size, np.random.default_rng([config.seed, step, 1]), device))
+            optimizer.zero_grad()
+            terms.total.backward()
+            for group in optimizer.param_groups:
+                group["lr"] = config.lr_at(step)
+            torch.nn.utils.clip_grad_norm_(model.parameters(), config.grad_clip)
+            optimizer.step()
+            step += 1
+            bar.update(1)
+            for k, v in terms.as_floats().items():
+                running[k] = running.get(k, 0.0) + v
+            record: dict[str, float] = {}
+            if step % log_every == 0:
+                record = {k: v / log_every for k, v in running.items()}
+                running = {}
+                bar.set_postfix(loss=f"{record['total']:.4f}")
+            if val_sequences and (step % val_every == 0 or step == config.steps):
+                record.update(validate(model, val_sequences))
+            if record:
+                record.update(step=step, seconds=round(time.time() - started, 1))
+                metrics_log.write(json.dumps(record) + "\n")
+                metrics_log.flush()
+            if record.get("smoothness") == 0.0:  # a mean of terms >= 0: every depth map was flat
+                raise InputError(
+                    f"{out}: the depth network collapsed by step {step}: each of its depth maps "
+                    f"over the last {log_every} steps was one constant (most likely its output "
+                    f"saturated, where no gradient reaches it). Train again in a new folder with "
+                    f"another seed (train-depth --seed), or, adapting to a video, with fewer "
+                    f"steps (docs/depth.md, \"Blurred images in the photometric error\")")
+            if step % save_every == 0 or step == config.steps:
+                save_checkpoint(path, {"depth": model.depth, "motion": model.motion},
+                                config.to_dict(), step, optimizer)
     if config.bn_recompute_batches:  # resets first, so a rerun of a finished run agrees
         recompute_motion_statistics(model, sampler, config.bn_recompute_batches, config.seed,
                                     device)

@@ -314,10 +314,13 @@ def test_a_collapsed_depth_network_stops_training_with_a_clear_error(tmp_path, c
                     TINY.to_dict(), 0)
     export_weights(tmp_path / "flat.ckpt", tmp_path / "flat.safetensors")
     config = replace(TINY, steps=6, init=str(tmp_path / "flat.safetensors"))
-    with pytest.raises(InputError, match=r"collapsed at steps 1-2: each of its depth maps"):
-        train_depth([clip], tmp_path / "run", config, log_every=2, progress=False)
+    with pytest.raises(InputError, match=r"collapsed by step 2: each of its depth maps over "
+                                         r"the last 2 steps was one constant"):
+        train_depth([clip], tmp_path / "run", config, log_every=2, save_every=2,
+                    progress=False)
     records = [json.loads(line) for line in (tmp_path / "run" / "metrics.jsonl").open()]
     assert [(r["step"], r["smoothness"]) for r in records] == [(2, 0.0)]
+    assert not (tmp_path / "run" / "checkpoint.safetensors").exists()  # stopped before saving
 
 
 def test_exported_weights_drop_the_optimiser_and_predict_the_same(tmp_path, batch):

@@ -390,9 +390,7 @@ def test_photo_blur_on_maps_blurs_only_the_maps_view_synthesis(triplets):
     sharp = DepthModel(replace(blurred.config, photo_blur=0.0))
     sharp.load_state_dict(blurred.state_dict())
 
-    def terms(model, blur_all=False):
-        if blur_all:
-            model.config = replace(model.config, photo_blur_on="all")
+    def terms(model):
         torch.manual_seed(1)
         with torch.no_grad():
             return with_map_terms(model.loss(batch.frames, batch.regions), model, batch)
@@ -400,7 +398,8 @@ def test_photo_blur_on_maps_blurs_only_the_maps_view_synthesis(triplets):
     on_maps = terms(blurred)
     plain = terms(sharp)
     assert float(on_maps.photometric) == float(plain.photometric)
-    everywhere = terms(blurred, blur_all=True)
+    blurred.config = replace(blurred.config, photo_blur_on="all")
+    everywhere = terms(blurred)
     assert float(on_maps.map_view) == pytest.approx(float(everywhere.map_view), rel=1e-6)
     assert float(everywhere.photometric) != pytest.approx(float(plain.photometric), rel=0.05)
     assert float(on_maps.map_view) != pytest.approx(float(plain.map_view), rel=0.05)
