@@ -126,7 +126,7 @@ def main() -> None:
     torch.set_num_threads(1)
     model = load_depth_model(args.model)
     # The view-synthesis loss only (a chain-trained model's loss would need chain targets),
-    # of the ordinary batches (whose photo_blur photo_blur_on may leave out).
+    # as the ordinary batches see it (photo_blur_on may keep photo_blur to the map batches).
     model.config = replace(model.config, w_chain=0.0).ordinary_view()
     procs = [p for d in args.data for p in list_procedures(d)]
     truth, predicted = [], []
