@@ -60,7 +60,8 @@ def frame_outputs(model: CoverageModel, samples: list[ProcedureSamples], desc: s
 
 def coverage_segment_net(model: CoverageModel, samples: list[ProcedureSamples],
                          views: list[np.ndarray]) -> CoverageModel:
-    """A segment network of `model`'s design on per-view coverages (F = 3) of the samples."""
+    """A segment network of `model`'s design on per-view coverages (F = 3) of the samples.
+    Only the returned model's `.segment` is trained and used; its frame network is unused."""
     config = replace(model.config, frame_channels=(*model.config.frame_channels[:-1],
                                                    len(DELTA_PAIRS_CM)))
     torch.manual_seed(config.seed)
