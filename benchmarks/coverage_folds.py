@@ -9,10 +9,15 @@ input's z (z > 0: moving along the view, as a camera looking back during a withd
 with --training, the same over each fold's training procedures, for the fold models' fit, and
 each fold model's metrics on its training procedures, their training windows (every 30
 frames) standing for segments, with the bias of the windows of true coverage below 0.4.
+With --by-position, the segment error by the segment's place in its procedure (0: the first,
+from the start of the withdrawal), pooled over the finished folds; with --data as well, the
+same of every finished fold model on those procedures, pooled over the models.
 The fold models are uncalibrated (learned.calibration).
 
     python benchmarks/coverage_folds.py --run data/runs/coverage-base0 --run data/runs/coverage-hops
     python benchmarks/coverage_folds.py --run data/runs/coverage-hops --fold 0 --training
+    python benchmarks/coverage_folds.py --run data/runs/coverage-hops --by-position \
+        --data data/heldout
 """
 
 from __future__ import annotations
@@ -25,7 +30,7 @@ import torch
 
 from learned.coverage_eval import CLASS_EDGES, Predictions, coverage_metrics, format_table
 from learned.coverage_nets import load_coverage_model
-from learned.coverage_train import fold_predictions, load_run, predict
+from learned.coverage_train import fold_predictions, load_run, load_samples, predict
 
 
 def by_kind(pred: np.ndarray, true: np.ndarray, z: np.ndarray) -> str:
@@ -42,6 +47,21 @@ def by_kind(pred: np.ndarray, true: np.ndarray, z: np.ndarray) -> str:
                      for name, m in kinds.items() if m.any())
 
 
+def by_position(segments: list[tuple[np.ndarray, np.ndarray]]) -> str:
+    """Lines of count, MAE and bias of the segments at each place in their procedure, from
+    (predicted, true) segment coverages per procedure."""
+    lines = []
+    for place in range(max(len(true) for _, true in segments)):
+        pairs = np.array([(pred[place], true[place]) for pred, true in segments
+                          if place < len(true) and np.isfinite(true[place])])
+        if len(pairs):
+            error = pairs[:, 0] - pairs[:, 1]
+            lines.append(f"  segment {place}: {len(pairs):3d} segments  mean truth "
+                         f"{pairs[:, 1].mean():.3f}  MAE {np.abs(error).mean():.3f}  bias "
+                         f"{error.mean():+.3f}")
+    return "\n".join(lines)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--run", type=Path, action="append", required=True)
@@ -49,11 +69,17 @@ def main() -> None:
                         help="also the fit to each fold's training procedures")
     parser.add_argument("--fold", type=int, action="append",
                         help="only this fold (repeatable; default: every finished fold)")
+    parser.add_argument("--by-position", action="store_true",
+                        help="also the segment error by the segment's place in its procedure")
+    parser.add_argument("--data", type=Path, action="append", default=[],
+                        help="with --by-position: procedures no fold model saw (repeatable)")
     args = parser.parse_args()
     torch.set_num_threads(1)
     for run in args.run:
-        rows, pooled, trained = {}, [], []
-        _, config, samples, folds = load_run(run)
+        rows, pooled, trained, placed, placed_data = {}, [], [], [], []
+        record, config, samples, folds = load_run(run)
+        extra = load_samples(args.data, config, Path(record["depth_checkpoint"]["path"])) \
+            if args.by_position and args.data else []
         if args.fold and not set(args.fold) <= set(range(len(folds))):
             parser.error(f"--fold: {run} has folds 0-{len(folds) - 1}")
         for k, held in enumerate(folds):
@@ -67,6 +93,8 @@ def main() -> None:
                                 samples[i].segment_labels)
                 pooled.append((frame[:, 1], samples[i].frame_labels[:, 1],
                                samples[i].travel[:, 2]))
+                placed.append((segment, samples[i].segment_labels))
+            placed_data += [(predict(model, s)[1], s.segment_labels) for s in extra]
             rows[f"fold {k}"] = coverage_metrics(predictions)
             if args.training:
                 training = [samples[i] for i in sorted(set(range(len(samples))) - set(held))]
@@ -91,6 +119,13 @@ def main() -> None:
         if trained:
             print("the same on the folds' training procedures:")
             print(by_kind(*(np.concatenate(column) for column in zip(*trained, strict=True))))
+        if args.by_position and placed:
+            print("segments by place in their procedure, the finished folds' held-out ones:")
+            print(by_position(placed))
+        if placed_data:
+            print(f"the same on {', '.join(map(str, args.data))}, every finished fold "
+                  f"model's, pooled:")
+            print(by_position(placed_data))
 
 
 if __name__ == "__main__":
