@@ -48,8 +48,8 @@ def by_kind(pred: np.ndarray, true: np.ndarray, z: np.ndarray) -> str:
 
 
 def by_position(segments: list[tuple[np.ndarray, np.ndarray]]) -> str:
-    """Lines of count, MAE and bias of the segments at each place in their procedure, from
-    (predicted, true) segment coverages per procedure."""
+    """Lines of count, mean truth, MAE and bias of the segments at each place in their
+    procedure, from (predicted, true) segment coverages per procedure."""
     lines = []
     for place in range(max(len(true) for _, true in segments)):
         pairs = np.array([(pred[place], true[place]) for pred, true in segments
@@ -74,6 +74,8 @@ def main() -> None:
     parser.add_argument("--data", type=Path, action="append", default=[],
                         help="with --by-position: procedures no fold model saw (repeatable)")
     args = parser.parse_args()
+    if args.data and not args.by_position:
+        parser.error("--data goes with --by-position")
     torch.set_num_threads(1)
     for run in args.run:
         rows, pooled, trained, placed, placed_data = {}, [], [], [], []
