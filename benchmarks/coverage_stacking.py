@@ -18,7 +18,8 @@ held-out procedures, each reading fold K's per-frame network there:
   the cross-validation is not fully nested: fold K's labels never reach its segment network,
   but its procedures shaped the other folds' per-frame networks.
 With --data, the same three segment networks of every fold are also scored on those
-procedures, which no fold model saw (each fold's figures, then their mean).
+procedures, which no fold model saw (each fold's figures, then their mean), read through the
+run's own depth model.
 
     python benchmarks/coverage_stacking.py --run data/runs/coverage-hops --data data/heldout \
         --out docs/coverage_stacking.json
@@ -36,7 +37,6 @@ import torch
 from tqdm import tqdm
 
 from hybrid.coverage import DELTA_PAIRS_CM
-from learned.checkpoints import SHIPPED_DEPTH
 from learned.coverage_data import ProcedureSamples
 from learned.coverage_eval import Predictions, bias_per_class, coverage_metrics, format_table
 from learned.coverage_nets import CoverageModel, load_coverage_model
@@ -96,18 +96,17 @@ def main() -> None:
     parser.add_argument("--run", type=Path, required=True)
     parser.add_argument("--data", type=Path, action="append", default=[],
                         help="procedures no fold model saw, or folders of them (repeat)")
-    parser.add_argument("--depth-checkpoint", type=Path, default=SHIPPED_DEPTH)
     parser.add_argument("--out", type=Path, help="write every figure to this JSON file")
     args = parser.parse_args()
-    _, config, samples, folds = load_run(args.run, progress=True)
+    record, config, samples, folds = load_run(args.run, progress=True)
     if not folds:
         parser.error(f"{args.run} has no cross-validation folds")
     models = [load_coverage_model(args.run / f"fold-{k}.safetensors") for k in range(len(folds))]
     fold_of = {int(i): k for k, held in enumerate(folds) for i in held}
     outputs = [frame_outputs(m, samples, f"fold {k}, all procedures")
                for k, m in enumerate(models)]
-    extra = load_samples(args.data, config, args.depth_checkpoint, progress=True) \
-        if args.data else []
+    extra = load_samples(args.data, config, Path(record["depth_checkpoint"]["path"]),
+                         progress=True) if args.data else []
     cv = {v: Predictions() for v in VARIANTS}
     unseen = {v: [] for v in VARIANTS}
     for k, (model, held) in enumerate(zip(models, folds, strict=True)):
