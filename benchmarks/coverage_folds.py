@@ -9,13 +9,16 @@ input's z (z > 0: moving along the view, as a camera looking back during a withd
 with --training, the same over each fold's training procedures, for the fold models' fit, and
 each fold model's metrics on its training procedures, their training windows (every 30
 frames) standing for segments, with the bias of the windows of true coverage below 0.4.
-With --by-position, the segment error by the segment's place in its procedure (0: the first,
-from the start of the withdrawal), pooled over the finished folds; with --data as well, the
-same of every finished fold model on those procedures, pooled over the models.
+With --data, each finished fold model's metrics on those procedures too (none of which it
+saw): a second, paired comparison of two runs' fold models. With --by-position, the segment
+error by the segment's place in its procedure (0: the first, from the start of the
+withdrawal), pooled over the finished folds; with --data as well, the same of every finished
+fold model on those procedures, pooled over the models.
 The fold models are uncalibrated (learned.calibration).
 
     python benchmarks/coverage_folds.py --run data/runs/coverage-base0 --run data/runs/coverage-hops
     python benchmarks/coverage_folds.py --run data/runs/coverage-hops --fold 0 --training
+    python benchmarks/coverage_folds.py --run data/runs/coverage-hops --fold 0 --data data/heldout
     python benchmarks/coverage_folds.py --run data/runs/coverage-hops --by-position \
         --data data/heldout
 """
@@ -72,16 +75,14 @@ def main() -> None:
     parser.add_argument("--by-position", action="store_true",
                         help="also the segment error by the segment's place in its procedure")
     parser.add_argument("--data", type=Path, action="append", default=[],
-                        help="with --by-position: procedures no fold model saw (repeatable)")
+                        help="procedures no fold model saw (repeatable)")
     args = parser.parse_args()
-    if args.data and not args.by_position:
-        parser.error("--data goes with --by-position")
     torch.set_num_threads(1)
     for run in args.run:
         rows, pooled, trained, placed, placed_data = {}, [], [], [], []
         record, config, samples, folds = load_run(run)
         extra = load_samples(args.data, config, Path(record["depth_checkpoint"]["path"])) \
-            if args.by_position and args.data else []
+            if args.data else []
         if args.fold and not set(args.fold) <= set(range(len(folds))):
             parser.error(f"--fold: {run} has folds 0-{len(folds) - 1}")
         for k, held in enumerate(folds):
@@ -96,8 +97,14 @@ def main() -> None:
                 pooled.append((frame[:, 1], samples[i].frame_labels[:, 1],
                                samples[i].travel[:, 2]))
                 placed.append((segment, samples[i].segment_labels))
-            placed_data += [(predict(model, s)[1], s.segment_labels) for s in extra]
             rows[f"fold {k}"] = coverage_metrics(predictions)
+            if extra:
+                on_data = Predictions()
+                for s in extra:
+                    frame, segment = predict(model, s)
+                    on_data.add(frame, s.frame_labels, segment, s.segment_labels)
+                    placed_data.append((segment, s.segment_labels))
+                rows[f"fold {k}, --data"] = coverage_metrics(on_data)
             if args.training:
                 training = [samples[i] for i in sorted(set(range(len(samples))) - set(held))]
                 fit = fold_predictions(model, training)
@@ -124,7 +131,7 @@ def main() -> None:
         if args.by_position and placed:
             print("segments by place in their procedure, the finished folds' held-out ones:")
             print(by_position(placed))
-        if placed_data:
+        if args.by_position and placed_data:
             print(f"the same on {', '.join(map(str, args.data))}, every finished fold "
                   f"model's, pooled:")
             print(by_position(placed_data))

@@ -7,11 +7,17 @@ the run's fold models. Both are uncalibrated (learned.calibration; the run's `cv
 gives them as its `uncalibrated` entry). A like-for-like test of a change of training data
 (say, more and shorter procedures for as many frames), which the run's own cross-validation
 cannot make.
+With --fold and --plus-fold-training, the model is fitted on that fold's training procedures
+as well as on --train: the fold model's data and more, a point on the learning curve. With
+--data, both models are also scored on those procedures (which neither saw).
 The --train procedures must not include any of the run's (checked by name).
 
     python benchmarks/coverage_heldout.py --run data/runs/coverage-hops --fold 0 \
         --train data/cov-pink-short --train data/cov-dusk-short --count 38 \
         --out data/runs/coverage-short76.safetensors
+    python benchmarks/coverage_heldout.py --run data/runs/coverage-hops --fold 0 \
+        --plus-fold-training --train data/cov-pink-more --train data/cov-dusk-more \
+        --data data/heldout --out data/runs/coverage-fold0-more.safetensors
 
 The model is kept at --out, with the names of its training procedures beside it (.json), and
 reused when they match.
@@ -38,8 +44,14 @@ def main() -> None:
                         help="a folder of simulated procedures (repeat)")
     parser.add_argument("--count", type=int, default=None,
                         help="take the first COUNT procedures of each --train folder")
+    parser.add_argument("--plus-fold-training", action="store_true",
+                        help="with --fold: also fit on that fold's training procedures")
+    parser.add_argument("--data", type=Path, action="append", default=[],
+                        help="also score both on these procedures (repeat)")
     parser.add_argument("--out", type=Path, required=True, help="where to save the model")
     args = parser.parse_args()
+    if args.plus_fold_training and args.fold is None:
+        parser.error("--plus-fold-training needs --fold")
     record, config, samples, folds = load_run(args.run, progress=True)
     if args.fold is not None and not 0 <= args.fold < len(folds):
         raise SystemExit(f"error: --fold must be 0-{len(folds) - 1} for {args.run}")
@@ -47,6 +59,9 @@ def main() -> None:
     names = [f"{p.parent.name}/{p.name}" for p in paths]
     if clash := sorted(set(names) & set(record["procedures"])):
         raise SystemExit(f"error: --train holds procedures of {args.run}: {clash}")
+    fold_training = ([i for i in range(len(samples)) if i not in set(folds[args.fold])]
+                     if args.plus_fold_training else [])
+    names = [record["procedures"][i] for i in fold_training] + names
     sidecar = args.out.with_suffix(".json")
     if args.out.is_file():
         trained_on = json.loads(sidecar.read_text())["procedures"] if sidecar.is_file() else None
@@ -55,8 +70,8 @@ def main() -> None:
                              f"remove it or choose another --out")
         model = load_coverage_model(args.out)
     else:
-        train = load_samples(paths, config, Path(record["depth_checkpoint"]["path"]),
-                             progress=True)
+        train = [samples[i] for i in fold_training] + load_samples(
+            paths, config, Path(record["depth_checkpoint"]["path"]), progress=True)
         tic = time.time()
         model = fit_model(train, config, lambda entry: None, progress=True)
         model.save(args.out)
@@ -69,8 +84,21 @@ def main() -> None:
         evaluate(load_coverage_model(args.run / f"fold-{k}.safetensors"), held, theirs)
         evaluate(model, held, ours)
     which = "all folds" if args.fold is None else f"fold {args.fold}"
-    print(format_table({f"the run's fold models, {which}": coverage_metrics(theirs),
-                        f"trained on --train, {which}": coverage_metrics(ours)}))
+    ours_name = "trained on --train" + (f" + fold {args.fold}'s training"
+                                        if args.plus_fold_training else "")
+    rows = {f"the run's fold models, {which}": coverage_metrics(theirs),
+            f"{ours_name}, {which}": coverage_metrics(ours)}
+    if args.data:
+        extra = load_samples(args.data, config, Path(record["depth_checkpoint"]["path"]),
+                             progress=True)
+        for k in range(len(folds)) if args.fold is None else [args.fold]:
+            theirs = Predictions()
+            evaluate(load_coverage_model(args.run / f"fold-{k}.safetensors"), extra, theirs)
+            rows[f"fold model {k}, --data"] = coverage_metrics(theirs)
+        ours = Predictions()
+        evaluate(model, extra, ours)
+        rows[f"{ours_name}, --data"] = coverage_metrics(ours)
+    print(format_table(rows))
 
 
 if __name__ == "__main__":

@@ -79,14 +79,15 @@ def _mean(values: np.ndarray) -> float | None:
 
 
 def format_table(rows: dict[str, dict]) -> str:
-    """One line per named metrics dict."""
+    """One line per named metrics dict, the names in full."""
     keys = [f"frame_mae_{pair_key(p)}" for p in DELTA_PAIRS_CM] + [
         "segment_mae", "segment_bias", "segment_3class_accuracy", "deficient_recall",
         "deficient_precision", "segments"]
-    head = f"{'':18s}" + "".join(f"{k.replace('segment_', 'seg_'):>16.15s}" for k in keys)
+    width = max([18, *map(len, rows)])
+    head = " " * width + "".join(f"{k.replace('segment_', 'seg_'):>16.15s}" for k in keys)
     lines = [head]
     for name, m in rows.items():
-        lines.append(f"{name:18.18s}" + "".join(
+        lines.append(f"{name:{width}s}" + "".join(
             f"{'n/a':>16s}" if m[k] is None else f"{m[k]:16d}" if isinstance(m[k], int)
             else f"{m[k]:16.4f}" for k in keys))
     return "\n".join(lines)

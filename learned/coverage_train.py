@@ -231,7 +231,7 @@ def calibrated_cv(folds: list[FoldPredictions]) -> Predictions:
 def evaluate(model: CoverageModel, samples: list[ProcedureSamples],
              predictions: Predictions | None = None) -> Predictions:
     """Predictions with their truth on each procedure (appended to `predictions` if given)."""
-    predictions = predictions or Predictions()
+    predictions = Predictions() if predictions is None else predictions
     for s in samples:
         frame, segment = predict(model, s)
         predictions.add(frame, s.frame_labels, segment, s.segment_labels)
