@@ -62,6 +62,9 @@ def main() -> None:
     fold_training = ([i for i in range(len(samples)) if i not in set(folds[args.fold])]
                      if args.plus_fold_training else [])
     names = [record["procedures"][i] for i in fold_training] + names
+    if clash := sorted({f"{p.parent.name}/{p.name}" for p in expand_inputs(args.data)}
+                       & (set(names) | set(record["procedures"]))):
+        raise SystemExit(f"error: --data holds procedures of {args.run} or --train: {clash}")
     sidecar = args.out.with_suffix(".json")
     if args.out.is_file():
         trained_on = json.loads(sidecar.read_text())["procedures"] if sidecar.is_file() else None
