@@ -33,7 +33,7 @@ import torch
 
 from learned.coverage_eval import CLASS_EDGES, Predictions, coverage_metrics, format_table
 from learned.coverage_nets import load_coverage_model
-from learned.coverage_train import fold_predictions, load_run, load_samples, predict
+from learned.coverage_train import evaluate, fold_predictions, load_run, load_samples, predict
 
 
 def by_kind(pred: np.ndarray, true: np.ndarray, z: np.ndarray) -> str:
@@ -99,11 +99,8 @@ def main() -> None:
                 placed.append((segment, samples[i].segment_labels))
             rows[f"fold {k}"] = coverage_metrics(predictions)
             if extra:
-                on_data = Predictions()
-                for s in extra:
-                    frame, segment = predict(model, s)
-                    on_data.add(frame, s.frame_labels, segment, s.segment_labels)
-                    placed_data.append((segment, s.segment_labels))
+                on_data = evaluate(model, extra)
+                placed_data += zip(on_data.segment_pred, on_data.segment_true, strict=True)
                 rows[f"fold {k}, --data"] = coverage_metrics(on_data)
             if args.training:
                 training = [samples[i] for i in sorted(set(range(len(samples))) - set(held))]

@@ -59,12 +59,13 @@ def main() -> None:
     names = [f"{p.parent.name}/{p.name}" for p in paths]
     if clash := sorted(set(names) & set(record["procedures"])):
         raise SystemExit(f"error: --train holds procedures of {args.run}: {clash}")
-    fold_training = ([i for i in range(len(samples)) if i not in set(folds[args.fold])]
+    fold_training = (sorted(set(range(len(samples))) - set(folds[args.fold].tolist()))
                      if args.plus_fold_training else [])
     names = [record["procedures"][i] for i in fold_training] + names
     if clash := sorted({f"{p.parent.name}/{p.name}" for p in expand_inputs(args.data)}
                        & (set(names) | set(record["procedures"]))):
         raise SystemExit(f"error: --data holds procedures of {args.run} or --train: {clash}")
+    depth = Path(record["depth_checkpoint"]["path"])
     sidecar = args.out.with_suffix(".json")
     if args.out.is_file():
         trained_on = json.loads(sidecar.read_text())["procedures"] if sidecar.is_file() else None
@@ -73,18 +74,20 @@ def main() -> None:
                              f"remove it or choose another --out")
         model = load_coverage_model(args.out)
     else:
-        train = [samples[i] for i in fold_training] + load_samples(
-            paths, config, Path(record["depth_checkpoint"]["path"]), progress=True)
+        train = [samples[i] for i in fold_training] + load_samples(paths, config, depth,
+                                                                   progress=True)
         tic = time.time()
         model = fit_model(train, config, lambda entry: None, progress=True)
         model.save(args.out)
         sidecar.write_text(json.dumps({"procedures": names}, indent=1) + "\n")
         print(f"fitted on {len(train)} procedures ({sum(len(s.inputs) for s in train)} "
               f"frames) in {time.time() - tic:.0f} s")
+    fold_models = {k: load_coverage_model(args.run / f"fold-{k}.safetensors")
+                   for k in (range(len(folds)) if args.fold is None else [args.fold])}
     ours, theirs = Predictions(), Predictions()
-    for k in range(len(folds)) if args.fold is None else [args.fold]:
+    for k, fold_model in fold_models.items():
         held = [samples[i] for i in folds[k]]
-        evaluate(load_coverage_model(args.run / f"fold-{k}.safetensors"), held, theirs)
+        evaluate(fold_model, held, theirs)
         evaluate(model, held, ours)
     which = "all folds" if args.fold is None else f"fold {args.fold}"
     ours_name = "trained on --train" + (f" + fold {args.fold}'s training"
@@ -92,15 +95,10 @@ def main() -> None:
     rows = {f"the run's fold models, {which}": coverage_metrics(theirs),
             f"{ours_name}, {which}": coverage_metrics(ours)}
     if args.data:
-        extra = load_samples(args.data, config, Path(record["depth_checkpoint"]["path"]),
-                             progress=True)
-        for k in range(len(folds)) if args.fold is None else [args.fold]:
-            theirs = Predictions()
-            evaluate(load_coverage_model(args.run / f"fold-{k}.safetensors"), extra, theirs)
-            rows[f"fold model {k}, --data"] = coverage_metrics(theirs)
-        ours = Predictions()
-        evaluate(model, extra, ours)
-        rows[f"{ours_name}, --data"] = coverage_metrics(ours)
+        extra = load_samples(args.data, config, depth, progress=True)
+        for k, fold_model in fold_models.items():
+            rows[f"fold model {k}, --data"] = coverage_metrics(evaluate(fold_model, extra))
+        rows[f"{ours_name}, --data"] = coverage_metrics(evaluate(model, extra))
     print(format_table(rows))
 
 
