@@ -24,7 +24,7 @@ import argparse
 import json
 import shutil
 import zlib
-from dataclasses import asdict
+from dataclasses import asdict, replace
 from pathlib import Path
 
 import numpy as np
@@ -67,8 +67,15 @@ def reset(work: Path, stage: str) -> None:
         shutil.rmtree(path) if path.is_dir() else path.unlink(missing_ok=True)
 
 
-def rerun(args: argparse.Namespace, rows: list[dict], models: Models, seed: int | None
-          ) -> tuple[list[dict], float]:
+def eval_config(folder: Path) -> RunConfig:
+    """The current settings with the model files the eval ran with (read from a work folder)."""
+    saved = json.loads(next(folder.glob(f"*/{W.CONFIG}")).read_text())["config"]
+    return replace(RunConfig(), depth_checkpoint=saved["depth_checkpoint"],
+                   coverage_checkpoint=saved["coverage_checkpoint"])
+
+
+def rerun(args: argparse.Namespace, rows: list[dict], config: RunConfig, models: Models,
+          seed: int | None) -> tuple[list[dict], float]:
     """The eval's rows with the geometric coverage of a nudged rerun (seed None: not nudged),
     and the largest move of a smoothed camera position from the unnudged rerun's, in cm."""
     nudged, pose_moves = [], []
@@ -81,7 +88,7 @@ def rerun(args: argparse.Namespace, rows: list[dict], models: Models, seed: int 
             rng = np.random.default_rng([seed, zlib.crc32(src.name.encode())])
             nudge(work, args.stage, rng, args.pose_nudge)
         reset(work, args.stage)
-        run_video(Path(procedure), work, RunConfig(), models, progress=False,
+        run_video(Path(procedure), work, config, models, progress=False,
                   echo=lambda _: None)
         table = json.loads((work / W.COVERAGE_JSON).read_text())["segments"]
         mine = [r for r in rows if r["procedure"] == procedure]
@@ -112,12 +119,16 @@ def main() -> None:
     args = parser.parse_args()
     evaluated = [r for r in json.loads((args.eval / "eval.json").read_text())["segments"]
                  if not args.procedures or Path(r["procedure"]).name in args.procedures]
-    models = Models.load(RunConfig())
+    if not evaluated:
+        raise SystemExit(f"no segments of {args.procedures} in {args.eval / 'eval.json'}; name "
+                         f"procedures as its 'procedure' paths end (e.g. proc_0015)")
+    config = eval_config(args.eval)
+    models = Models.load(config)
     print(summary_line("as evaluated", evaluated))
-    rows = rerun(args, evaluated, models, None)[0]
+    rows = rerun(args, evaluated, config, models, None)[0]
     print(summary_line("rerun, not nudged", rows))
     for seed in args.seeds:
-        nudged, pose_move = rerun(args, rows, models, seed)
+        nudged, pose_move = rerun(args, rows, config, models, seed)
         moved = [(abs(a["geometric"] - b["geometric"]), f"{Path(a['procedure']).name} "
                   f"segment {a['segment']}: {a['geometric']:.3f} -> {b['geometric']:.3f}")
                  for a, b in zip(rows, nudged, strict=True)
