@@ -7,13 +7,13 @@ work folder gets one of two nudges, and the stages after it run again:
   - `reconstruction`: the smoothed poses' translations moved by --pose-nudge (normal noise
     per axis, in the network's unit: reconstruction.json's scale_cm_per_unit gives it in cm,
     10-15 for data/heldout); reconstruction and geometric coverage rerun.
-The stages that rerun take their settings from the current code. They first rerun without a
-nudge (so a change to those settings is measured too), and the nudged runs are compared with
-that. Each procedure's nudge is drawn from (seed, procedure name), so --procedures reruns a
-subset as the whole run nudged it. Prints the eval's and the unnudged rerun's geometric MAE
-and agreement, then, per seed, the geometric MAE against the truth, the 3-class agreement
-with the learned branch, the largest change of one segment's geometric coverage (and which),
-and the largest move of a smoothed camera position in cm.
+The stages that rerun take their settings from the current code, and the model files from the
+eval's. They first rerun without a nudge (so a change to those settings is measured too), and
+the nudged runs are compared with that. Each procedure's nudge is drawn from (seed, procedure
+name), so --procedures reruns a subset as the whole run nudged it. Prints the eval's and the
+unnudged rerun's geometric MAE and agreement, then, per seed, the geometric MAE against the
+truth, the 3-class agreement with the learned branch, the largest change of one segment's
+geometric coverage (and which), and the largest move of a smoothed camera position in cm.
 
     python benchmarks/geometric_noise.py --eval data/eval-heldout-shipped --stage posegraph \
         --seeds 0 1 --out /tmp/noise
@@ -69,7 +69,11 @@ def reset(work: Path, stage: str) -> None:
 
 def eval_config(folder: Path) -> RunConfig:
     """The current settings with the model files the eval ran with (read from a work folder)."""
-    saved = json.loads(next(folder.glob(f"*/{W.CONFIG}")).read_text())["config"]
+    work = next(folder.glob(f"*/{W.CONFIG}"), None)
+    if work is None:
+        raise SystemExit(f"{folder} holds no work folder of a procedure; give the --out of a "
+                         f"finished c2d2 eval")
+    saved = json.loads(work.read_text())["config"]
     return replace(RunConfig(), depth_checkpoint=saved["depth_checkpoint"],
                    coverage_checkpoint=saved["coverage_checkpoint"])
 
