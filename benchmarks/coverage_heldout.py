@@ -33,7 +33,7 @@ from pathlib import Path
 from learned.coverage_eval import Predictions, coverage_metrics, format_table
 from learned.coverage_nets import load_coverage_model
 from learned.coverage_train import evaluate, fit_model, load_run, load_samples
-from learned.train import expand_inputs
+from learned.train import expand_inputs, input_name
 
 
 def main() -> None:
@@ -56,13 +56,13 @@ def main() -> None:
     if args.fold is not None and not 0 <= args.fold < len(folds):
         raise SystemExit(f"error: --fold must be 0-{len(folds) - 1} for {args.run}")
     paths = [p for folder in args.train for p in expand_inputs([folder])[:args.count]]
-    names = [f"{p.parent.name}/{p.name}" for p in paths]
+    names = [input_name(p) for p in paths]
     if clash := sorted(set(names) & set(record["procedures"])):
         raise SystemExit(f"error: --train holds procedures of {args.run}: {clash}")
     fold_training = (sorted(set(range(len(samples))) - set(folds[args.fold].tolist()))
                      if args.plus_fold_training else [])
     names = [record["procedures"][i] for i in fold_training] + names
-    if clash := sorted({f"{p.parent.name}/{p.name}" for p in expand_inputs(args.data)}
+    if clash := sorted({input_name(p) for p in expand_inputs(args.data)}
                        & (set(names) | set(record["procedures"]))):
         raise SystemExit(f"error: --data holds procedures of {args.run} or --train: {clash}")
     depth = Path(record["depth_checkpoint"]["path"])

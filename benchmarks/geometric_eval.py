@@ -48,7 +48,7 @@ from learned.frames import open_sequence
 from learned.infer import infer_sequence
 from learned.metrics import umeyama_sim3
 from learned.model import load_depth_model
-from learned.train import expand_inputs
+from learned.train import expand_inputs, input_name
 
 LOCAL_SWAPS = {"local-oracle": (), "local-metric": ("depth", "K", "poses"),
                "local-depth": ("depth",), "local-K": ("K",), "local-poses": ("poses",)}
@@ -288,7 +288,7 @@ def main() -> None:
     config = ReconstructionConfig(voxel_cm=args.voxel_cm)
     odometry = OdometryConfig(enabled=not args.no_odometry,
                               iterations=tuple(args.odometry_iterations))
-    paths = {f"{p.parent.name}/{p.name}": p for p in expand_inputs(args.data)}
+    paths = {input_name(p): p for p in expand_inputs(args.data)}
     results = {name: run_procedure(Procedure.open(p), model, graph, odometry, config, geometric,
                                    modes)
                for name, p in paths.items()}

@@ -459,7 +459,7 @@ def eval_depth(
     from learned.evaluate import DEPTH_KEYS, evaluate_sequence, summarise
     from learned.frames import open_sequence
     from learned.model import load_depth_model
-    from learned.train import expand_inputs
+    from learned.train import expand_inputs, input_name
 
     if adapt_dir is not None and not adapt_steps:
         raise InputError("--adapt-dir keeps adapted models: give --adapt-steps too")
@@ -468,7 +468,7 @@ def eval_depth(
     model = load_depth_model(checkpoint, device=device)
     size = (model.config.height, model.config.width)
     paths = expand_inputs(data)
-    names = [f"{p.parent.name}/{p.name}" for p in paths]  # proc_0000 of two datasets differ
+    names = [input_name(p) for p in paths]
     results, stretches = {}, {}
     with tempfile.TemporaryDirectory() as scratch:
         for name, path in zip(names, paths, strict=True):

@@ -31,6 +31,7 @@ from learned.coverage_nets import normalise_depth, region_medians, relative_scal
 from learned.frames import FrameSequence, open_sequence
 from learned.infer import DepthOutput, infer_sequence
 from learned.model import DepthModel
+from learned.train import input_name
 from learned.travel import chain_relative, no_travel, travel_features
 from learned.view import view_values
 
@@ -129,7 +130,7 @@ def procedure_samples(path: Path, config: CoverageConfig, depth_model: DepthMode
     labels = np.array([[np.nan if v is None else v for v in truth.per_frame[pair_key(p)]]
                        for p in truth.delta_pairs], dtype=np.float32).T
     return ProcedureSamples(
-        name=f"{proc.path.parent.name}/{proc.path.name}", inputs=inputs, travel=travel,
+        name=input_name(proc.path), inputs=inputs, travel=travel,
         view=view, scale=scale, frame_labels=labels,
         window_starts=windows[:, 0].astype(int), window_labels=windows[:, 1],
         segment_starts=np.array([s.start for s in truth.segments], dtype=int),

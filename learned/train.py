@@ -61,6 +61,12 @@ def expand_inputs(paths: list[Path]) -> list[Path]:
     return out
 
 
+def input_name(path: Path) -> str:
+    """How runs name an input: its folder's name and its own (proc_0000 of two datasets
+    differ)."""
+    return f"{path.parent.name}/{path.name}"
+
+
 @dataclass
 class TripletSampler:
     """Random (previous, target, next) frame triplets, `gap` frames apart, from sequences."""
