@@ -10,7 +10,8 @@ with --training, the same over each fold's training procedures, for the fold mod
 each fold model's metrics on its training procedures, their training windows (every 30
 frames) standing for segments, with the bias of the windows of true coverage below 0.4.
 With --data, each finished fold model's metrics on those procedures too (none of which it
-saw): a second, paired comparison of two runs' fold models. With --by-position, the segment
+saw): a second, paired comparison of two runs' fold models; --data-only skips the run's own
+held-out folds (most of the time on a large run). With --by-position, the segment
 error by the segment's place in its procedure (0: the first, from the start of the
 withdrawal), pooled over the finished folds; with --data as well, the same of every finished
 fold model on those procedures, pooled over the models.
@@ -19,6 +20,8 @@ The fold models are uncalibrated (learned.calibration).
     python benchmarks/coverage_folds.py --run data/runs/coverage-base0 --run data/runs/coverage-hops
     python benchmarks/coverage_folds.py --run data/runs/coverage-hops --fold 0 --training
     python benchmarks/coverage_folds.py --run data/runs/coverage-hops --fold 0 --data data/heldout
+    python benchmarks/coverage_folds.py --run data/runs/coverage-more96-cv --data-only \
+        --data data/cov-pink-more2 --data data/cov-dusk-more2
     python benchmarks/coverage_folds.py --run data/runs/coverage-hops --by-position \
         --data data/heldout
 """
@@ -76,7 +79,11 @@ def main() -> None:
                         help="also the segment error by the segment's place in its procedure")
     parser.add_argument("--data", type=Path, action="append", default=[],
                         help="procedures no fold model saw (repeatable)")
+    parser.add_argument("--data-only", action="store_true",
+                        help="with --data: skip the run's own held-out folds")
     args = parser.parse_args()
+    if args.data_only and not args.data:
+        parser.error("--data-only needs --data")
     torch.set_num_threads(1)
     for run in args.run:
         rows, pooled, trained, placed, placed_data = {}, [], [], [], []
@@ -90,14 +97,15 @@ def main() -> None:
             if not path.is_file() or (args.fold and k not in args.fold):
                 continue
             model, predictions = load_coverage_model(path), Predictions()
-            for i in held:
+            for i in [] if args.data_only else held:
                 frame, segment = predict(model, samples[i])
                 predictions.add(frame, samples[i].frame_labels, segment,
                                 samples[i].segment_labels)
                 pooled.append((frame[:, 1], samples[i].frame_labels[:, 1],
                                samples[i].travel[:, 2]))
                 placed.append((segment, samples[i].segment_labels))
-            rows[f"fold {k}"] = coverage_metrics(predictions)
+            if not args.data_only:
+                rows[f"fold {k}"] = coverage_metrics(predictions)
             if extra:
                 on_data = evaluate(model, extra)
                 placed_data += zip(on_data.segment_pred, on_data.segment_true, strict=True)

@@ -367,6 +367,11 @@ class CoverageConfig:
     """Stage 2 batch size (windows)."""
     segment_lr: float = 2e-3
     """Stage 2 Adam learning rate (cosine-annealed)."""
+    frame_loss: str = "l2"
+    """Stage 1 loss on the per-frame coverages: 'l2' (the paper) or 'l1', whose minimiser is
+    the conditional median, the estimate that minimises the MAE the targets are stated in."""
+    segment_loss: str = "l2"
+    """Stage 2 loss on the window coverages: 'l2' (the paper) or 'l1'."""
     weight_decay: float = 1e-4
     """AdamW weight decay of both stages."""
     depth_power: float = 0.0
@@ -389,6 +394,9 @@ class CoverageConfig:
                              f"{self.travel_hops}")
         if self.depth_power < 0:
             raise ValueError(f"depth_power must be >= 0 (0: off), got {self.depth_power}")
+        for name in ("frame_loss", "segment_loss"):
+            if getattr(self, name) not in ("l1", "l2"):
+                raise ValueError(f"{name} must be 'l1' or 'l2', got {getattr(self, name)!r}")
         if self.field_of_view not in ("none", "predicted", "true"):
             raise ValueError(f"field_of_view must be 'none', 'predicted' or 'true', got "
                              f"{self.field_of_view!r}")

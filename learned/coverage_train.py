@@ -48,6 +48,12 @@ def fold_split(count: int, folds: int, seed: int) -> list[np.ndarray]:
     return [np.sort(part) for part in np.array_split(order, folds)]
 
 
+def regression_loss(kind: str, pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    """Mean squared ('l2') or absolute ('l1') error."""
+    error = pred - target
+    return (error.square() if kind == "l2" else error.abs()).mean()
+
+
 def _optimise(loss: torch.Tensor, optimizer: torch.optim.Optimizer, schedule) -> float:
     """One optimiser and schedule step on the loss; returns its value."""
     optimizer.zero_grad()
@@ -65,7 +71,8 @@ def powered(depth: torch.Tensor, powers: torch.Tensor) -> torch.Tensor:
 
 def train_frame_net(model: CoverageModel, samples: list[ProcedureSamples], log,
                     progress: bool = False) -> None:
-    """Stage 1: L2 loss on the per-frame coverage of the three Δ pairs (undefined ones masked).
+    """Stage 1: the frame_loss (L2 or L1) on the per-frame coverage of the three Δ pairs
+    (undefined ones masked).
 
     Depth maps are flipped left-right and up-down at random, the travel direction's x and y
     with them: a mirrored colon is covered alike. With `depth_power`, each map is also raised
@@ -103,8 +110,8 @@ def train_frame_net(model: CoverageModel, samples: list[ProcedureSamples], log,
             x = powered(x, torch.from_numpy(np.exp(u).astype(np.float32)).to(device))
         y = torch.from_numpy(labels[ids]).to(device)
         ok = torch.isfinite(y)
-        running.append(_optimise((model.frame(x, m)[ok] - y[ok]).square().mean(), optimizer,
-                                 schedule))
+        error = regression_loss(config.frame_loss, model.frame(x, m)[ok], y[ok])
+        running.append(_optimise(error, optimizer, schedule))
         bar.update(1)
         if (step + 1) % 100 == 0 or step + 1 == total:
             log({"stage": 1, "step": step + 1, "loss": float(np.mean(running))})
@@ -116,8 +123,8 @@ def train_frame_net(model: CoverageModel, samples: list[ProcedureSamples], log,
 
 def train_segment_net(model: CoverageModel, samples: list[ProcedureSamples],
                       features: list[np.ndarray], log, progress: bool = False) -> None:
-    """Stage 2: L2 loss on the coverage of overlapping windows of frozen per-frame features
-    ((N, len(MIRRORS), F) per procedure).
+    """Stage 2: the segment_loss (L2 or L1) on the coverage of overlapping windows of frozen
+    per-frame features ((N, len(MIRRORS), F) per procedure).
 
     Each window is taken in one of its mirror views and reversed in time at random (coverage
     depends on neither). Sets the feature standardisation and the CORAL source statistics from
@@ -157,8 +164,8 @@ def train_segment_net(model: CoverageModel, samples: list[ProcedureSamples],
         x = stack(picks, rng.integers(len(MIRRORS), size=len(picks)))
         reverse = torch.from_numpy(rng.random(len(picks)) < 0.5).to(device)
         x = torch.where(reverse[:, None, None], x.flip(1), x)
-        running.append(_optimise((net(x) - targets[picks]).square().mean(), optimizer,
-                                 schedule))
+        error = regression_loss(config.segment_loss, net(x), targets[picks])
+        running.append(_optimise(error, optimizer, schedule))
         bar.update(1)
         if (step + 1) % 200 == 0 or step + 1 == total:
             log({"stage": 2, "step": step + 1, "loss": float(np.mean(running))})

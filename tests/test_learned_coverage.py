@@ -39,6 +39,7 @@ from learned.coverage_train import (
     fold_split,
     load_run,
     powered,
+    regression_loss,
     train_frame_net,
     train_segment_net,
 )
@@ -342,6 +343,21 @@ def test_training_reduces_both_losses_on_a_tiny_set():
     assert all(np.isfinite(e["loss"]) for e in log)
 
 
+@pytest.mark.parametrize(("kind", "fit"), [("l2", 0.18), ("l1", 0.0)])
+def test_l2_loss_fits_the_mean_and_l1_the_median(kind, fit):
+    """Seven frames covered 0 and three 0.6: one constant fits 0.18 under L2, 0 under L1."""
+    target = torch.tensor([0.0] * 7 + [0.6] * 3)
+    constant = nn.Parameter(torch.tensor(0.3))
+    optimizer = torch.optim.Adam([constant], lr=0.01)
+    for _ in range(500):
+        optimizer.zero_grad()
+        regression_loss(kind, constant.expand(10), target).backward()
+        optimizer.step()
+    assert abs(float(constant) - fit) < 0.02, float(constant)
+    assert float(regression_loss(kind, torch.full((10,), 0.18), target)) == pytest.approx(
+        0.7 * 0.18**2 + 0.3 * 0.42**2 if kind == "l2" else 0.7 * 0.18 + 0.3 * 0.42)
+
+
 def test_source_statistics_are_those_of_every_training_window_in_every_view():
     samples = toy_samples()
     torch.manual_seed(0)
@@ -474,6 +490,9 @@ def test_coverage_config_overrides():
         coverage_config("fast", input_depth="lidar")
     with pytest.raises(ValueError, match="field_of_view"):
         coverage_config("fast", field_of_view="wide")
+    with pytest.raises(ValueError, match="segment_loss"):
+        coverage_config("fast", segment_loss="huber")
+    assert coverage_config("paper").frame_loss == "l2"  # the paper's loss
     with pytest.raises(ValueError, match="unknown preset"):
         coverage_config("huge")
 
