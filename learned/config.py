@@ -432,6 +432,8 @@ class CoverageConfig:
         values = {k: tuple(v) if isinstance(v, list) else v for k, v in data.items() if k in known}
         values.setdefault("travel_gap", 0)  # saved before the travel input: depth only
         values.setdefault("travel_hops", 0)  # saved before the longer travel
+        values.setdefault("frame_loss", "l2")  # saved before the loss could be chosen
+        values.setdefault("segment_loss", "l2")
         return cls(**values)
 
 

@@ -20,7 +20,7 @@ from hybrid.pipeline import Models, RunConfig
 from hybrid.types import InputError
 from learned.calibration import fit_table, identity_table
 from learned.checkpoint import save_checkpoint
-from learned.config import COVERAGE_PRESETS, coverage_config, parse_overrides
+from learned.config import COVERAGE_PRESETS, CoverageConfig, coverage_config, parse_overrides
 from learned.coral import adapt, coral_transform, set_source
 from learned.coverage_data import ProcedureSamples, procedure_samples
 from learned.coverage_nets import (
@@ -767,3 +767,11 @@ def test_a_model_from_before_the_longer_travel_still_loads(tmp_path):
     loaded = load_coverage_model(path)
     assert loaded.config == old and COVERAGE_PRESETS["fast"].travel_hops == 8
     assert loaded.config.travel_size == 4 and loaded.frame.encoder.stem[0].in_channels == 5
+
+
+def test_a_config_from_before_the_loss_settings_reads_as_l2():
+    """Networks saved before frame_loss and segment_loss existed were trained with L2."""
+    saved = replace(SMALL, frame_loss="l1", segment_loss="l1").to_dict()
+    del saved["frame_loss"], saved["segment_loss"]
+    loaded = CoverageConfig.from_dict(saved)
+    assert (loaded.frame_loss, loaded.segment_loss) == ("l2", "l2")
