@@ -368,8 +368,8 @@ class CoverageConfig:
     segment_lr: float = 2e-3
     """Stage 2 Adam learning rate (cosine-annealed)."""
     frame_loss: str = "l2"
-    """Stage 1 loss on the per-frame coverages: 'l2' (the paper) or 'l1', whose minimiser is
-    the conditional median, the estimate that minimises the MAE the targets are stated in."""
+    """Stage 1 loss on the per-frame coverages: 'l2' (the paper) or 'l1' (the fast preset),
+    whose minimiser is the conditional median, the estimate of least mean absolute error."""
     segment_loss: str = "l2"
     """Stage 2 loss on the window coverages: 'l2' (the paper) or 'l1'."""
     weight_decay: float = 1e-4
@@ -438,14 +438,15 @@ class CoverageConfig:
 
 
 COVERAGE_PRESETS: dict[str, CoverageConfig] = {
-    "fast": CoverageConfig(),
+    "fast": CoverageConfig(frame_loss="l1"),
     "paper": CoverageConfig(
         preset="paper", height=320, width=384,
         frame_channels=(64, 256, 512, 1024, 2048), frame_blocks=(3, 4, 6, 3), bottleneck=True,
         frame_epochs=20, frame_batch=32, frame_lr=3e-4,
     ),
 }
-"""`fast`: a small ResNet on 64x80 depth, F = 128. `paper`: ResNet-50 at 320x384, F = 2048."""
+"""`fast`: a small ResNet on 64x80 depth, F = 128, L1 per frame (docs/coverage.md, "The L1
+loss per frame"). `paper`: ResNet-50 at 320x384, F = 2048, L2 per frame as in the paper."""
 
 
 def coverage_config(preset: str, **overrides) -> CoverageConfig:
