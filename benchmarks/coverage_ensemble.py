@@ -11,10 +11,16 @@ The models as saved (the fold models uncalibrated; the final model as shipped).
 With --segment-seeds N --fold K instead: fold K's per-frame network kept, N - 1 more segment
 networks trained on its features of the fold's training procedures (seeds 1 .. N - 1), and
 the segment MAE on the fold's held-out procedures of each (seed 0: the fold model's own) and
-of their mean: how much the segment network's seed alone moves a fold's error.
+of their mean: how much the segment network's seed alone moves a fold's error. --fold
+repeats, and the errors are also pooled over the folds and seeds. With --set FIELD=VALUE
+(segment_* fields only) each seed, 0 included, is trained twice on the same features, as
+the run was and with that setting: a change of the segment network's training, paired by
+seed, beside the seeds' spread.
 
     python benchmarks/coverage_ensemble.py --run data/runs/coverage-hops --data data/heldout
     python benchmarks/coverage_ensemble.py --run data/runs/coverage-hops --segment-seeds 4 --fold 0
+    python benchmarks/coverage_ensemble.py --run data/runs/coverage-more96-l1 --segment-seeds 1 \
+        --fold 0 --fold 1 --fold 2 --fold 3 --fold 4 --set segment_loss=l1
 """
 
 from __future__ import annotations
@@ -28,36 +34,54 @@ import numpy as np
 import torch
 
 from learned.checkpoints import SHIPPED_DEPTH
+from learned.config import COVERAGE_PRESETS, parse_overrides
 from learned.coverage_eval import Predictions, coverage_metrics, format_table
 from learned.coverage_nets import SegmentNet, load_coverage_model
 from learned.coverage_train import load_run, load_samples, predict, train_segment_net
 
 
-def segment_seeds(run: Path, fold: int, seeds: int) -> None:
-    """Fold `fold`'s segment MAE under `seeds` segment networks on its per-frame features."""
+def segment_seeds(run: Path, fold_ids: list[int], seeds: int, overrides: dict) -> None:
+    """The segment MAE of each fold in `fold_ids` under `seeds` segment networks on its
+    per-frame features; with `overrides`, each seed trained both as the run was and with them."""
     _, config, samples, folds = load_run(run, progress=True)
-    held = set(folds[fold].tolist())
-    model = load_coverage_model(run / f"fold-{fold}.safetensors")
-    features = [model.frame_outputs(s.inputs, s.cues)[1] for s in samples]
-    train = [i for i in range(len(samples)) if i not in held]
-    true = np.concatenate([samples[i].segment_labels for i in sorted(held)])
-    ok = np.isfinite(true)
-    predictions = []
-    for seed in range(seeds):
-        if seed:
-            model = copy.deepcopy(model)
-            model.config = replace(config, seed=seed)
-            torch.manual_seed(seed)
-            model.segment.load_state_dict(SegmentNet(model.config).state_dict())
-            train_segment_net(model, [samples[i] for i in train], [features[i] for i in train],
-                              lambda entry: None, progress=True)
-        predictions.append(np.concatenate([model.segment_outputs(
-            features[i], samples[i].segment_starts.tolist(), calibrated=False)
-            for i in sorted(held)])[ok])
-        print(f"fold {fold}, segment seed {seed}: segment MAE "
-              f"{np.abs(predictions[-1] - true[ok]).mean():.4f}", flush=True)
-    print(f"fold {fold}, mean of {seeds} segment networks: segment MAE "
-          f"{np.abs(np.mean(predictions, axis=0) - true[ok]).mean():.4f}")
+    if not set(fold_ids) <= set(range(len(folds))):
+        raise SystemExit(f"error: --fold must be 0-{len(folds) - 1} for {run}")
+    variants = {"as run": config}
+    if overrides:
+        variants[", ".join(f"{k}={v}" for k, v in overrides.items())] = replace(config, **overrides)
+    pooled = {name: ([], []) for name in variants}  # (prediction, truth) per fold and seed
+    for fold in fold_ids:
+        held = sorted(folds[fold].tolist())
+        fold_model = load_coverage_model(run / f"fold-{fold}.safetensors")
+        features = [fold_model.frame_outputs(s.inputs, s.cues)[1] for s in samples]
+        train = [i for i in range(len(samples)) if i not in held]
+        true = np.concatenate([samples[i].segment_labels for i in held])
+        ok = np.isfinite(true)
+        for name, variant in variants.items():
+            predictions = []
+            for seed in range(seeds):
+                model = fold_model
+                if seed or overrides:
+                    model = copy.deepcopy(fold_model)
+                    model.config = replace(variant, seed=seed)
+                    torch.manual_seed(seed)
+                    model.segment.load_state_dict(SegmentNet(model.config).state_dict())
+                    train_segment_net(model, [samples[i] for i in train],
+                                      [features[i] for i in train], lambda entry: None,
+                                      progress=True)
+                predictions.append(np.concatenate([model.segment_outputs(
+                    features[i], samples[i].segment_starts.tolist(), calibrated=False)
+                    for i in held])[ok])
+                pooled[name][0].append(predictions[-1])
+                pooled[name][1].append(true[ok])
+                print(f"fold {fold}, {name}, segment seed {seed}: segment MAE "
+                      f"{np.abs(predictions[-1] - true[ok]).mean():.4f}", flush=True)
+            print(f"fold {fold}, {name}, mean of {seeds} segment networks: segment MAE "
+                  f"{np.abs(np.mean(predictions, axis=0) - true[ok]).mean():.4f}")
+    for name, (predicted, truth) in pooled.items():
+        error = np.concatenate(predicted) - np.concatenate(truth)
+        print(f"folds {fold_ids}, {name}, every seed pooled: segment MAE "
+              f"{np.abs(error).mean():.4f}, bias {error.mean():+.4f}")
 
 
 def main() -> None:
@@ -68,10 +92,19 @@ def main() -> None:
     parser.add_argument("--depth-checkpoint", type=Path, default=SHIPPED_DEPTH)
     parser.add_argument("--segment-seeds", type=int, default=0,
                         help="segment networks per fold (with --fold; instead of --data)")
-    parser.add_argument("--fold", type=int, default=0)
+    parser.add_argument("--fold", type=int, action="append",
+                        help="with --segment-seeds: this fold (repeat; default: 0)")
+    parser.add_argument("--set", action="append", default=[], dest="overrides",
+                        help="with --segment-seeds: train each segment network also with this "
+                             "segment_* setting, e.g. segment_loss=l1 (repeat)")
     args = parser.parse_args()
+    if any(not item.startswith("segment_") for item in args.overrides):
+        parser.error("--set takes segment_* fields only: the per-frame network is not retrained")
     if args.segment_seeds:
-        return segment_seeds(args.run, args.fold, args.segment_seeds)
+        overrides = parse_overrides(args.overrides, COVERAGE_PRESETS["fast"])
+        return segment_seeds(args.run, args.fold or [0], args.segment_seeds, overrides)
+    if args.overrides:
+        parser.error("--set needs --segment-seeds")
     if not args.data:
         parser.error("give --data, or --segment-seeds with --fold")
     folds = sorted((p.stem for p in args.run.glob("fold-*.safetensors")),

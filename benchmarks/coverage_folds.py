@@ -84,10 +84,12 @@ def main() -> None:
     args = parser.parse_args()
     if args.data_only and not args.data:
         parser.error("--data-only needs --data")
+    if args.data_only and args.training:
+        parser.error("--data-only skips the run's procedures, which --training scores")
     torch.set_num_threads(1)
     for run in args.run:
         rows, pooled, trained, placed, placed_data = {}, [], [], [], []
-        record, config, samples, folds = load_run(run)
+        record, config, samples, folds = load_run(run, with_samples=not args.data_only)
         extra = load_samples(args.data, config, Path(record["depth_checkpoint"]["path"])) \
             if args.data else []
         if args.fold and not set(args.fold) <= set(range(len(folds))):

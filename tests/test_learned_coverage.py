@@ -564,6 +564,8 @@ def test_train_eval_and_adapt_commands(tmp_path, two_procedures):
     record, config, samples, folds = load_run(run)
     assert config.travel_hops == 2 and [s.name for s in samples] == record["procedures"]
     assert [f.tolist() for f in folds] == [f.tolist() for f in fold_split(2, 2, 0)]
+    _, _, no_samples, same_folds = load_run(run, with_samples=False)
+    assert no_samples == [] and [f.tolist() for f in same_folds] == [f.tolist() for f in folds]
     # The cross-validation's segments are calibrated fold by fold on the other fold's held-out
     # windows, and the shipped model on both folds' windows.
     held = [fold_predictions(load_coverage_model(run / f"fold-{k}.safetensors"),
