@@ -40,9 +40,11 @@ def main() -> None:
     differ = classes["learned"] != classes["geometric"]
     edge_distance = np.min([np.abs(v[:, None] - np.asarray(CLASS_EDGES)).min(1)
                             for v in (learned, geometric)], axis=0)
-    print(f"{differ.sum()} disagreements: learned class wrong in "
-          f"{(differ & (classes['geometric'] == classes['truth'])).sum()}, geometric in "
-          f"{(differ & (classes['learned'] == classes['truth'])).sum()}; "
+    right = {k: classes[k] == classes["truth"] for k in ("learned", "geometric")}
+    print(f"{differ.sum()} disagreements: only the learned class wrong in "
+          f"{(differ & right['geometric']).sum()}, only the geometric in "
+          f"{(differ & right['learned']).sum()}, both in "
+          f"{(differ & ~right['learned'] & ~right['geometric']).sum()}; "
           f"{(differ & (edge_distance <= 0.05)).sum()} with a value within 0.05 of a class edge")
     print(f"correlation of the branches' errors: "
           f"{np.corrcoef(learned - truth, geometric - truth)[0, 1]:.2f}")
