@@ -13,7 +13,7 @@ networks trained on its features of the fold's training procedures (seeds 1 .. N
 the segment MAE on the fold's held-out procedures of each (seed 0: the fold model's own) and
 of their mean: how much the segment network's seed alone moves a fold's error. --fold
 repeats, and the errors are also pooled over the folds and seeds. With --set FIELD=VALUE
-(segment_* fields only) each seed, 0 included, is trained twice on the same features, as
+(stage 2's training settings only) each seed, 0 included, is trained twice on the same features, as
 the run was and with that setting: a change of the segment network's training, paired by
 seed, beside the seeds' spread.
 
@@ -38,6 +38,10 @@ from learned.config import COVERAGE_PRESETS, parse_overrides
 from learned.coverage_eval import Predictions, coverage_metrics, format_table
 from learned.coverage_nets import SegmentNet, load_coverage_model
 from learned.coverage_train import load_run, load_samples, predict, train_segment_net
+
+# Stage 2's training settings: what --set may change on the fold models' own features (the
+# segment network's shape and windows are the fold model's).
+SEGMENT_TRAINING = ("segment_loss", "segment_epochs", "segment_batch", "segment_lr")
 
 
 def segment_seeds(run: Path, fold_ids: list[int], seeds: int, overrides: dict) -> None:
@@ -96,10 +100,14 @@ def main() -> None:
                         help="with --segment-seeds: this fold (repeat; default: 0)")
     parser.add_argument("--set", action="append", default=[], dest="overrides",
                         help="with --segment-seeds: train each segment network also with this "
-                             "segment_* setting, e.g. segment_loss=l1 (repeat)")
+                             f"setting, one of {', '.join(SEGMENT_TRAINING)}, e.g. "
+                             "segment_loss=l1 (repeat)")
     args = parser.parse_args()
-    if any(not item.startswith("segment_") for item in args.overrides):
-        parser.error("--set takes segment_* fields only: the per-frame network is not retrained")
+    if any(item.partition("=")[0] not in SEGMENT_TRAINING for item in args.overrides):
+        parser.error(f"--set takes {', '.join(SEGMENT_TRAINING)} only: the per-frame network "
+                     f"and the segment network's shape are the fold model's")
+    if args.fold and not args.segment_seeds:
+        parser.error("--fold needs --segment-seeds")
     if args.segment_seeds:
         overrides = parse_overrides(args.overrides, COVERAGE_PRESETS["fast"])
         return segment_seeds(args.run, args.fold or [0], args.segment_seeds, overrides)
