@@ -47,9 +47,11 @@ SEGMENT_TRAINING = ("segment_loss", "segment_epochs", "segment_batch", "segment_
 def segment_seeds(run: Path, fold_ids: list[int], seeds: int, overrides: dict) -> None:
     """The segment MAE of each fold in `fold_ids` under `seeds` segment networks on its
     per-frame features; with `overrides`, each seed trained both as the run was and with them."""
-    _, config, samples, folds = load_run(run, progress=True)
-    if not set(fold_ids) <= set(range(len(folds))):
-        raise SystemExit(f"error: --fold must be 0-{len(folds) - 1} for {run}")
+    _, config, _, folds = load_run(run, with_samples=False)
+    if bad := [k for k in fold_ids if k not in range(len(folds))]:
+        raise SystemExit(f"error: {run} has no fold {bad[0]}"
+                         + (f" (folds 0-{len(folds) - 1})" if folds else ""))
+    samples = load_run(run, progress=True)[2]
     variants = {"as run": config}
     if overrides:
         variants[", ".join(f"{k}={v}" for k, v in overrides.items())] = replace(config, **overrides)
@@ -109,12 +111,17 @@ def main() -> None:
     if args.fold and not args.segment_seeds:
         parser.error("--fold needs --segment-seeds")
     if args.segment_seeds:
-        overrides = parse_overrides(args.overrides, COVERAGE_PRESETS["fast"])
-        return segment_seeds(args.run, args.fold or [0], args.segment_seeds, overrides)
+        try:
+            overrides = parse_overrides(args.overrides, COVERAGE_PRESETS["fast"])
+            replace(COVERAGE_PRESETS["fast"], **overrides)  # the values' own checks
+        except ValueError as err:
+            parser.error(str(err))
+        return segment_seeds(args.run, sorted(set(args.fold or [0])), args.segment_seeds,
+                             overrides)
     if args.overrides:
         parser.error("--set needs --segment-seeds")
     if not args.data:
-        parser.error("give --data, or --segment-seeds with --fold")
+        parser.error("give --data, or --segment-seeds")
     folds = sorted((p.stem for p in args.run.glob("fold-*.safetensors")),
                    key=lambda name: int(name.split("-")[1]))
     if not folds or not (args.run / "model.safetensors").is_file():

@@ -272,15 +272,15 @@ def load_run(run: Path, progress: bool = False, with_samples: bool = True
              ) -> tuple[dict, CoverageConfig, list[ProcedureSamples], list[np.ndarray]]:
     """A `train_coverage` run's record, config, samples and fold split (held-out indices), its
     procedures and depth model checked against the record; with_samples=False loads no
-    samples (an empty list) and checks nothing."""
+    samples (an empty list) and checks the depth model only."""
     record = json.loads((Path(run) / "record.json").read_text())
     config = recorded_config(record)
     folds = fold_split(len(record["procedures"]), config.folds, config.seed)
-    if not with_samples:
-        return record, config, [], folds
     depth = Path(record["depth_checkpoint"]["path"])
     if file_tag(depth) != record["depth_checkpoint"]["sha256_12"]:
         raise InputError(f"{depth} is no longer the depth model {run} was trained on")
+    if not with_samples:
+        return record, config, [], folds
     samples = load_samples([Path(p) for p in record["data"]], config, depth, progress)
     if [s.name for s in samples] != record["procedures"]:
         raise InputError(f"the procedures under {record['data']} are no longer those of {run}")
