@@ -37,7 +37,7 @@ from learned.checkpoints import SHIPPED_DEPTH
 from learned.config import COVERAGE_PRESETS, parse_overrides
 from learned.coverage_eval import Predictions, coverage_metrics, format_table
 from learned.coverage_nets import SegmentNet, load_coverage_model
-from learned.coverage_train import load_run, load_samples, predict, train_segment_net
+from learned.coverage_train import load_run, load_samples, predict, run_samples, train_segment_net
 
 # Stage 2's training settings: what --set may change on the fold models' own features (the
 # segment network's shape and windows are the fold model's).
@@ -47,11 +47,11 @@ SEGMENT_TRAINING = ("segment_loss", "segment_epochs", "segment_batch", "segment_
 def segment_seeds(run: Path, fold_ids: list[int], seeds: int, overrides: dict) -> None:
     """The segment MAE of each fold in `fold_ids` under `seeds` segment networks on its
     per-frame features; with `overrides`, each seed trained both as the run was and with them."""
-    _, config, _, folds = load_run(run, with_samples=False)
+    record, config, _, folds = load_run(run, with_samples=False)
     if bad := [k for k in fold_ids if k not in range(len(folds))]:
         raise SystemExit(f"error: {run} has no fold {bad[0]}"
                          + (f" (folds 0-{len(folds) - 1})" if folds else ""))
-    samples = load_run(run, progress=True)[2]
+    samples = run_samples(run, record, config, progress=True)
     variants = {"as run": config}
     if overrides:
         variants[", ".join(f"{k}={v}" for k, v in overrides.items())] = replace(config, **overrides)

@@ -271,20 +271,26 @@ def recorded_config(record: dict) -> CoverageConfig:
 def load_run(run: Path, progress: bool = False, with_samples: bool = True
              ) -> tuple[dict, CoverageConfig, list[ProcedureSamples], list[np.ndarray]]:
     """A `train_coverage` run's record, config, samples and fold split (held-out indices), its
-    procedures and depth model checked against the record; with_samples=False loads no
-    samples (an empty list) and checks the depth model only."""
+    depth model checked against the record; with_samples=False loads no samples (an empty
+    list; `run_samples` loads them later)."""
     record = json.loads((Path(run) / "record.json").read_text())
     config = recorded_config(record)
     folds = fold_split(len(record["procedures"]), config.folds, config.seed)
     depth = Path(record["depth_checkpoint"]["path"])
     if file_tag(depth) != record["depth_checkpoint"]["sha256_12"]:
         raise InputError(f"{depth} is no longer the depth model {run} was trained on")
-    if not with_samples:
-        return record, config, [], folds
-    samples = load_samples([Path(p) for p in record["data"]], config, depth, progress)
+    samples = run_samples(run, record, config, progress) if with_samples else []
+    return record, config, samples, folds
+
+
+def run_samples(run: Path, record: dict, config: CoverageConfig, progress: bool = False
+                ) -> list[ProcedureSamples]:
+    """The samples of the procedures a run's record names, checked against it."""
+    samples = load_samples([Path(p) for p in record["data"]], config,
+                           Path(record["depth_checkpoint"]["path"]), progress)
     if [s.name for s in samples] != record["procedures"]:
         raise InputError(f"the procedures under {record['data']} are no longer those of {run}")
-    return record, config, samples, folds
+    return samples
 
 
 def train_coverage(data: list[Path], out: Path, config: CoverageConfig,

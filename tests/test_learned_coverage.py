@@ -40,6 +40,7 @@ from learned.coverage_train import (
     load_run,
     powered,
     regression_loss,
+    run_samples,
     train_frame_net,
     train_segment_net,
 )
@@ -566,6 +567,7 @@ def test_train_eval_and_adapt_commands(tmp_path, two_procedures):
     assert [f.tolist() for f in folds] == [f.tolist() for f in fold_split(2, 2, 0)]
     _, _, no_samples, same_folds = load_run(run, with_samples=False)
     assert no_samples == [] and [f.tolist() for f in same_folds] == [f.tolist() for f in folds]
+    assert [s.name for s in run_samples(run, record, config)] == record["procedures"]
     # The cross-validation's segments are calibrated fold by fold on the other fold's held-out
     # windows, and the shipped model on both folds' windows.
     held = [fold_predictions(load_coverage_model(run / f"fold-{k}.safetensors"),
