@@ -7,7 +7,8 @@ scored: the sparse depth's scale-free error (median over the target's points of
 |log(map / true) - their median|), and the motion target -> next against the true one, the
 rotation's error and the angle between the translations, for the map and for the depth
 model's motion network on the same pair. Also each procedure's agreeing stretches and their
-focal error. Prints one row per style and writes the rows per procedure as JSON.
+focal error, with its sign (the stretch's fx over the camera's, less 1). Prints one row per
+style and writes the rows per procedure as JSON.
 
     .venv/bin/python benchmarks/sfm_map_quality.py --data data/train-pink data/train-dusk \\
         --maps data/sfm-maps --out docs/sfm_depth/map-quality.json
@@ -66,6 +67,7 @@ def main() -> None:
         row = {"procedure": seq.name, "stretches": len(fx),
                "mapped": int(np.isfinite(fx).sum()), "agreeing": len(used),
                "fx_rel": [abs(fx[s] / seq.camera.K[0, 0] - 1) for s in used],
+               "fx_signed": [fx[s] / seq.camera.K[0, 0] - 1 for s in used],
                "triplets": len(triplets.triplets), "depth": [], "rotation": [],
                "translation": [], "net_rotation": [], "net_translation": []}
         for _, t in triplets.triplets[::args.every]:
@@ -87,9 +89,9 @@ def main() -> None:
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(rows, indent=1))
     print("| style | procedures | stretches agreeing / mapped / all | fx error (agreeing) | "
-          "triplets | sparse depth error | rotation error, map / network (deg) | "
-          "translation angle, map / network (deg) |")
-    print("| --- | --- | --- | --- | --- | --- | --- | --- |")
+          "fx / true - 1 (agreeing) | triplets | sparse depth error | "
+          "rotation error, map / network (deg) | translation angle, map / network (deg) |")
+    print("| --- | --- | --- | --- | --- | --- | --- | --- | --- |")
     for style in sorted({Path(r["procedure"]).parent.name for r in rows}):
         mine = [r for r in rows if Path(r["procedure"]).parent.name == style]
 
@@ -99,7 +101,8 @@ def main() -> None:
 
         print(f"| {style} | {len(mine)} | {sum(r['agreeing'] for r in mine)} / "
               f"{sum(r['mapped'] for r in mine)} / {sum(r['stretches'] for r in mine)} | "
-              f"{median('fx_rel')} | {sum(r['triplets'] for r in mine)} | {median('depth')} | "
+              f"{median('fx_rel')} | {median('fx_signed')} | "
+              f"{sum(r['triplets'] for r in mine)} | {median('depth')} | "
               f"{median('rotation')} / {median('net_rotation')} | "
               f"{median('translation')} / {median('net_translation')} |")
 

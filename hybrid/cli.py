@@ -78,12 +78,16 @@ def simulate(
                                                    "frames.")] = None,
     first_index: Annotated[int, typer.Option(help="Index of the first procedure.")] = 0,
     workers: Annotated[int, typer.Option(min=1, help="Procedures simulated in parallel.")] = 1,
+    camera_seed: Annotated[int | None, typer.Option(
+        help="Give procedure i the camera that procedure i of this seed has (colon, withdrawal "
+             "and texture stay --seed's), so that two styles can share their cameras.")] = None,
 ):
     """Simulate procedures with rendered RGB, depth, poses and exact ground-truth coverage."""
     from hybrid.sim.simulate import SimConfig, simulate_dataset, with_overrides
 
     try:
-        config = with_overrides(SimConfig(preset=preset, style=style), length_cm, max_frames)
+        config = with_overrides(SimConfig(preset=preset, style=style, camera_seed=camera_seed),
+                                length_cm, max_frames)
     except ValueError as err:
         raise InputError(str(err)) from err
     for path in simulate_dataset(out, procedures, seed, config, workers, first_index):

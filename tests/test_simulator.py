@@ -16,7 +16,13 @@ from hybrid.dataset import Procedure
 from hybrid.sim.appearance import TEXELS_PER_CM, get_style
 from hybrid.sim.colon import Colon, ColonConfig, make_colon
 from hybrid.sim.render import ColonRenderer
-from hybrid.sim.simulate import SimConfig, draw_camera, simulate_dataset, simulate_procedure
+from hybrid.sim.simulate import (
+    SimConfig,
+    draw_camera,
+    draw_scene,
+    simulate_dataset,
+    simulate_procedure,
+)
 from hybrid.sim.trajectory import TrajectoryConfig, make_withdrawal
 from hybrid.types import Camera, InputError, check_poses
 
@@ -137,6 +143,18 @@ def test_camera_draw_within_configured_lens():
         assert abs(camera.fy / camera.fx - 1) <= config.aspect_jitter
         assert abs(camera.cx - 79.5) <= config.principal_jitter * 160
         assert abs(camera.cy - 63.5) <= config.principal_jitter * 128
+
+
+def test_camera_seed_takes_that_seeds_camera_and_nothing_else():
+    pink = SimConfig(style="pink")
+    dusk = SimConfig(style="dusk")
+    for index in (0, 3):
+        own = draw_scene(dusk, 2, index)
+        shared = draw_scene(replace(dusk, camera_seed=1), 2, index)
+        assert shared.camera == draw_scene(pink, 1, index).camera != own.camera
+        np.testing.assert_array_equal(shared.poses, own.poses)
+        np.testing.assert_array_equal(shared.colon.vertices, own.colon.vertices)
+        np.testing.assert_array_equal(shared.renderer.texture, own.renderer.texture)
 
 
 def test_rendered_depth_of_a_straight_tube_is_analytic():

@@ -49,6 +49,11 @@ class SimConfig:
     """fy/fx is drawn in 1 +- this."""
     principal_jitter: float = 0.03
     """The principal point is drawn within +- this fraction of the size from the centre."""
+    camera_seed: int | None = None
+    """None: each procedure draws its own camera. Otherwise procedure i gets the camera that
+    procedure i of this seed gets (same config), and everything else stays its own seed's:
+    datasets of two styles can then share their cameras, so that style says nothing about
+    the field of view (docs/depth.md, "Cameras shared by the styles")."""
     segment_frames: int = 300
     """Frames per coverage segment."""
 
@@ -96,6 +101,10 @@ def draw_scene(config: SimConfig, seed: int, index: int) -> Scene:
     rng = np.random.default_rng([seed, index])
     colon = make_colon(config.colon, rng)
     camera = draw_camera(config, rng)
+    if config.camera_seed is not None:  # replay that seed's draws up to its camera
+        other = np.random.default_rng([config.camera_seed, index])
+        make_colon(config.colon, other)
+        camera = draw_camera(config, other)
     poses = make_withdrawal(colon, config.trajectory, rng)
     style = get_style(config.style)
     circumference = 2 * np.pi * float(np.mean(config.colon.radius_range_cm))
