@@ -6,9 +6,11 @@ relative poses (gaps 1 and 2), refined by RGB-D odometry and smoothed by the pos
 a ray-cast of the TSDF fused so far, seen from where the refined step puts the frame (point
 to plane by default, Open3D's choice; `--method hybrid` adds the ray-cast colour), and then
 fused. With `--truth` the tracker gets the simulator's depth and K instead (the pipeline's
-poses still come from the network): whether the tracker itself works. ATE and RPE
-(after Sim(3) alignment, cm and degrees) against the true poses. Distances are fractions of
-the median depth, since the network's depth has no unit.
+poses still come from the network; the steps that start the tracker are put in cm by the
+ratio of the median depths): whether the tracker itself works. ATE and RPE (after Sim(3)
+alignment, cm and degrees) against the true poses, and their means. The tracker's voxel,
+truncation and outlier bound are fractions of the median depth, since the network's depth
+has no unit.
 
     .venv/bin/python benchmarks/frame_to_model.py \\
         --data data/cov-pink/proc_0012 data/cov-dusk/proc_0013 [--truth]
@@ -42,7 +44,7 @@ def track(seq: FrameSequence, depth: list[np.ndarray], K: np.ndarray, steps: np.
     """Camera-to-world poses tracked frame to model, each started from the previous pose
     moved by `steps[t]` (camera t points into camera t+1), and how many frames failed to
     track (they keep the start)."""
-    unit = float(np.median(np.concatenate([d[d > 0] for d in depth[::10]])))
+    unit = _median(depth)
     device = o3d.core.Device("CPU:0")
     model = o3d.t.pipelines.slam.Model(voxel * unit, 16, blocks, o3d.core.Tensor(np.eye(4)),
                                        device)
@@ -96,6 +98,7 @@ def main() -> None:
     model = load_depth_model(args.checkpoint)
     print("| procedure | poses | ATE (cm) | RPE (cm) | RPE (deg) |")
     print("| --- | --- | --- | --- | --- |")
+    table: dict[str, list[dict[str, float]]] = {}
     for path in args.data:
         seq = open_sequence(path, SIZE)
         count = min(args.frames, seq.num_frames)
@@ -106,21 +109,38 @@ def main() -> None:
                                         name=path.name)
         rows = {"pipeline (odometry, pose graph)":
                 smooth_trajectory(refined.relative, PoseGraphConfig()).poses}
+        steps = refined.relative[1]
         if args.truth:
             depth = [np.asarray(seq.depth(i), np.float32) for i in range(count)]
+            steps = steps.copy()
+            steps[:, :3, 3] *= _median(depth) / _median(list(inferred.depth))
             K = seq.camera.K
         else:
             depth = [np.asarray(d, np.float32) for d in inferred.depth]
         if seq.region is not None:
             depth = [np.where(seq.region, d, np.float32(0)) for d in depth]
-        poses, failed = track(seq, depth, K, refined.relative[1], args.method, args.voxel,
-                              args.truncation, args.blocks)
-        rows[f"frame to model, {args.method}" + (", true depth and K" if args.truth else "")
-             + (f" ({failed} frames untracked)" if failed else "")] = poses
+        poses, failed = track(seq, depth, K, steps, args.method, args.voxel, args.truncation,
+                              args.blocks)
+        tracker = f"frame to model, {args.method}" + (", true depth and K" if args.truth else "")
+        rows[tracker] = poses
         for name, poses in rows.items():
-            e = trajectory_errors(poses, seq.poses[:count])
-            print(f"| {path.name} | {name} | {e['ate']:.3f} | {e['rpe_translation']:.3f} | "
-                  f"{e['rpe_rotation_deg']:.3f} |")
+            errors = trajectory_errors(poses, seq.poses[:count])
+            table.setdefault(name, []).append(errors)
+            untracked = f" ({failed} frames untracked)" if name == tracker and failed else ""
+            print(f"| {path.parent.name}/{path.name} | {name}{untracked} | {_cells(errors)}")
+    for name, errors in table.items():
+        mean = {k: float(np.mean([e[k] for e in errors])) for k in errors[0]}
+        print(f"| **mean** | {name} | {_cells(mean)}")
+
+
+def _median(depth: list[np.ndarray]) -> float:
+    """Median positive depth of every 10th map."""
+    return float(np.median(np.concatenate([d[d > 0] for d in depth[::10]])))
+
+
+def _cells(errors: dict[str, float]) -> str:
+    keys = ("ate", "rpe_translation", "rpe_rotation_deg")
+    return " | ".join(f"{errors[k]:.3f}" for k in keys) + " |"
 
 
 if __name__ == "__main__":

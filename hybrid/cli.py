@@ -79,8 +79,9 @@ def simulate(
     first_index: Annotated[int, typer.Option(help="Index of the first procedure.")] = 0,
     workers: Annotated[int, typer.Option(min=1, help="Procedures simulated in parallel.")] = 1,
     camera_seed: Annotated[int | None, typer.Option(
-        help="Give procedure i the camera that procedure i of this seed has (colon, withdrawal "
-             "and texture stay --seed's), so that two styles can share their cameras.")] = None,
+        help="Give procedure i the camera that procedure i of this seed has with the same "
+             "--preset and --length-cm (colon, withdrawal and texture stay --seed's), so that "
+             "two styles can share their cameras.")] = None,
 ):
     """Simulate procedures with rendered RGB, depth, poses and exact ground-truth coverage."""
     from hybrid.sim.simulate import SimConfig, simulate_dataset, with_overrides

@@ -89,6 +89,21 @@ def test_a_complete_procedure_of_other_settings_is_refused(tmp_path, simulated, 
     assert (copy / "coverage.json").read_text() == kept
 
 
+def test_a_procedure_simulated_before_camera_seed_existed_resumes(tmp_path, simulated,
+                                                                 sim_config):
+    copy = tmp_path / simulated.name
+    shutil.copytree(simulated, copy)
+    meta = json.loads((copy / "meta.json").read_text())
+    del meta["config"]["camera_seed"]
+    (copy / "meta.json").write_text(json.dumps(meta))
+    marker = '{"marker": true}\n'
+    (copy / "coverage.json").write_text(marker)
+    assert simulate_procedure(tmp_path, 7, 0, sim_config) == copy
+    assert (copy / "coverage.json").read_text() == marker
+    with pytest.raises(InputError, match="differing: camera_seed"):
+        simulate_procedure(tmp_path, 7, 0, replace(sim_config, camera_seed=1))
+
+
 def test_meta_records_seed_and_config(simulated, sim_config):
     meta = json.loads((simulated / "meta.json").read_text())
     assert (meta["seed"], meta["index"], meta["num_frames"]) == (7, 0, 40)
@@ -145,9 +160,9 @@ def test_camera_draw_within_configured_lens():
         assert abs(camera.cy - 63.5) <= config.principal_jitter * 128
 
 
-def test_camera_seed_takes_that_seeds_camera_and_nothing_else():
-    pink = SimConfig(style="pink")
-    dusk = SimConfig(style="dusk")
+def test_camera_seed_takes_that_seeds_camera_and_nothing_else(sim_config):
+    pink = replace(sim_config, style="pink")
+    dusk = replace(sim_config, style="dusk")
     for index in (0, 3):
         own = draw_scene(dusk, 2, index)
         shared = draw_scene(replace(dusk, camera_seed=1), 2, index)

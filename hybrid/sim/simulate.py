@@ -1,8 +1,8 @@
 """Simulate procedures to disk: colon, camera, withdrawal, rendered frames, ground truth.
 
 Reads nothing; writes one procedure folder per index in the format of `hybrid.dataset`.
-The procedure with index i of seed s depends only on (s, i), so a dataset can be extended or
-resumed and stays identical.
+The procedure with index i of seed s depends only on (s, i) and the config (camera_seed
+included), so a dataset can be extended or resumed and stays identical.
 """
 
 from __future__ import annotations
