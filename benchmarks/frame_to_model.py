@@ -25,10 +25,10 @@ import numpy as np
 import open3d as o3d
 import torch
 
-from fusion.odometry import OdometryConfig, refine_relative_poses
+from fusion.odometry import OdometryConfig, median_depth, refine_relative_poses
 from fusion.posegraph import PoseGraphConfig, smooth_trajectory
 from learned.checkpoints import SHIPPED_DEPTH
-from learned.frames import FrameSequence, open_sequence
+from learned.frames import open_sequence
 from learned.infer import infer_sequence
 from learned.metrics import trajectory_errors
 from learned.model import load_depth_model
@@ -38,13 +38,13 @@ METHODS = {"point-to-plane": o3d.t.pipelines.odometry.Method.PointToPlane,
            "hybrid": o3d.t.pipelines.odometry.Method.Hybrid}
 
 
-def track(seq: FrameSequence, depth: list[np.ndarray], K: np.ndarray, steps: np.ndarray,
-          method: str, voxel: float, truncation: float, blocks: int
+def track(frames: list[np.ndarray], depth: list[np.ndarray], K: np.ndarray, steps: np.ndarray,
+          method: str, voxel: float, truncation: float, blocks: int, unit: float
           ) -> tuple[np.ndarray, int]:
-    """Camera-to-world poses tracked frame to model, each started from the previous pose
-    moved by `steps[t]` (camera t points into camera t+1), and how many frames failed to
-    track (they keep the start)."""
-    unit = _median(depth)
+    """Camera-to-world poses tracked frame to model (RGB frames, depth 0 outside the image
+    region, distances in `unit`s), each started from the previous pose moved by `steps[t]`
+    (camera t points into camera t+1), and how many frames failed to track (they keep the
+    start)."""
     device = o3d.core.Device("CPU:0")
     model = o3d.t.pipelines.slam.Model(voxel * unit, 16, blocks, o3d.core.Tensor(np.eye(4)),
                                        device)
@@ -57,7 +57,7 @@ def track(seq: FrameSequence, depth: list[np.ndarray], K: np.ndarray, steps: np.
     for t in range(len(depth)):
         frame.set_data_from_image("depth", o3d.t.geometry.Image(depth[t][..., None]))
         frame.set_data_from_image("color", o3d.t.geometry.Image(
-            np.ascontiguousarray(seq.frame(t), np.float32) / 255))
+            np.ascontiguousarray(frames[t], np.float32) / 255))
         if t > 0:
             start = poses[-1] @ np.linalg.inv(steps[t - 1])
             model.update_frame_pose(t, o3d.core.Tensor(start))
@@ -104,23 +104,26 @@ def main() -> None:
         count = min(args.frames, seq.num_frames)
         inferred = infer_sequence(model, seq, (1, 2), frames=range(count))
         K = np.median(inferred.K_pairs, axis=0)
-        refined = refine_relative_poses(inferred.relative, inferred.depth,
-                                        [seq.frame(i) for i in range(count)], K, seq.region,
-                                        name=path.name)
+        frames = [seq.frame(i) for i in range(count)]
+        refined = refine_relative_poses(inferred.relative, inferred.depth, frames, K,
+                                        seq.region, name=path.name)
         rows = {"pipeline (odometry, pose graph)":
                 smooth_trajectory(refined.relative, PoseGraphConfig()).poses}
         steps = refined.relative[1]
+        unit = median_depth(inferred.depth, seq.region, path.name)
         if args.truth:
             depth = [np.asarray(seq.depth(i), np.float32) for i in range(count)]
             steps = steps.copy()
-            steps[:, :3, 3] *= _median(depth) / _median(list(inferred.depth))
+            true_unit = median_depth(depth, seq.region, path.name)
+            steps[:, :3, 3] *= true_unit / unit
+            unit = true_unit
             K = seq.camera.K
         else:
             depth = [np.asarray(d, np.float32) for d in inferred.depth]
         if seq.region is not None:
             depth = [np.where(seq.region, d, np.float32(0)) for d in depth]
-        poses, failed = track(seq, depth, K, steps, args.method, args.voxel, args.truncation,
-                              args.blocks)
+        poses, failed = track(frames, depth, K, steps, args.method, args.voxel, args.truncation,
+                              args.blocks, unit)
         tracker = f"frame to model, {args.method}" + (", true depth and K" if args.truth else "")
         rows[tracker] = poses
         for name, poses in rows.items():
@@ -131,11 +134,6 @@ def main() -> None:
     for name, errors in table.items():
         mean = {k: float(np.mean([e[k] for e in errors])) for k in errors[0]}
         print(f"| **mean** | {name} | {_cells(mean)}")
-
-
-def _median(depth: list[np.ndarray]) -> float:
-    """Median positive depth of every 10th map."""
-    return float(np.median(np.concatenate([d[d > 0] for d in depth[::10]])))
 
 
 def _cells(errors: dict[str, float]) -> str:

@@ -105,7 +105,7 @@ def refine_relative_poses(relative: dict[int, np.ndarray], depth: Sequence[np.nd
                          f"{np.asarray(region).dtype} {np.shape(region)}")
     if region is not None and region.all():  # nothing outside: no masking, no copying
         region = None
-    scale = _median_depth(depth, region, name)
+    scale = median_depth(depth, region, name)
     params = _odometry.OdometryLossParams(config.depth_outlier * scale, config.depth_huber * scale,
                                           config.intensity_huber)
     intrinsics = o3d.core.Tensor(K)
@@ -202,9 +202,9 @@ def _rgbd(colour: np.ndarray, depth: np.ndarray) -> o3d.t.geometry.RGBDImage:
                                     o3d.t.geometry.Image(np.ascontiguousarray(depth[..., None])))
 
 
-def _median_depth(depth: Sequence[np.ndarray], region: np.ndarray | None, name: str) -> float:
-    """Median of the valid depth of every 10th frame (of every frame if those hold none): the
-    unit of the odometry's thresholds."""
+def median_depth(depth: Sequence[np.ndarray], region: np.ndarray | None, name: str) -> float:
+    """Median of the valid depth inside the region of every 10th frame (of every frame if
+    those hold none): the unit of the odometry's thresholds."""
     for stride in (10, 1):
         values = []
         for f in range(0, len(depth), stride):
