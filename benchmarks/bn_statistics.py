@@ -26,12 +26,10 @@ import json
 from dataclasses import replace
 from pathlib import Path
 
-import numpy as np
-
 from hybrid.dataset import list_procedures
 from learned.checkpoint import read_checkpoint, save_checkpoint
+from learned.evaluate import head_focal_lengths
 from learned.frames import open_sequence
-from learned.infer import infer_sequence
 from learned.model import load_depth_model
 from learned.train import TripletSampler, recompute_motion_statistics
 
@@ -56,13 +54,7 @@ def main() -> None:
         config = replace(model.config, bn_recompute_batches=args.batches)
         save_checkpoint(args.save, {"depth": model.depth, "motion": model.motion},
                         config.to_dict(), read_checkpoint(args.model)[1]["step"])
-    procedures = {}
-    for folder in args.data:
-        for procedure in list_procedures(folder):
-            seq = open_sequence(procedure.path, size)
-            head = np.median(infer_sequence(model, seq, depth=False).K_pairs, axis=0)
-            procedures[f"{folder.name}/{procedure.path.name}"] = {
-                "fx_true": float(seq.camera.fx), "fx_head": float(head[0, 0])}
+    procedures = head_focal_lengths(model, args.data)
     args.out.write_text(json.dumps({"procedures": procedures}, indent=1))
 
 

@@ -135,6 +135,13 @@ class DepthConfig:
     which inference uses. False leaves them to the ordinary frames and the map batches
     (docs/depth.md, "Batch norm's statistics recomputed": it did not remove the shift of the
     head's focal length that those statistics cause; recomputing them did)."""
+    motion_noise: float = 0.0
+    """Training only: Gaussian noise added to each frame the motion network reads (not to the
+    images the loss compares), its standard deviation (0..1 scale) drawn per pair uniformly
+    from [0, motion_noise], so that the head is less able to read a style's sensor noise as
+    its focal length (docs/depth.md, "What in the dusk images moves the head?"); 0: off. The
+    running batch-norm statistics are then gathered on noisy frames and inference reads clean
+    ones: recompute them (bn_recompute_batches) before reading the head."""
     maps: str = ""
     """Folder of structure-from-motion maps of the training inputs (`c2d2 sfm-maps`); each
     step then also draws a batch of triplets from their agreeing stretches
@@ -218,6 +225,8 @@ class DepthConfig:
         if self.motion_net not in ("stacked", "correlation") or self.motion_reach < 1:
             raise ValueError(f"motion_net must be 'stacked' or 'correlation' and motion_reach "
                              f">= 1, got {self.motion_net!r} and {self.motion_reach}")
+        if not self.motion_noise >= 0:
+            raise ValueError(f"motion_noise must be >= 0, got {self.motion_noise}")
         if not self.display_gamma > 0:
             raise ValueError(f"display_gamma must be positive, got {self.display_gamma}")
         if not self.input_fps >= 0:

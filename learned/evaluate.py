@@ -7,12 +7,16 @@ trajectory over a window against the true poses (Sim(3)-aligned).
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from pathlib import Path
+
 import numpy as np
 import torch
 
+from hybrid.dataset import list_procedures
 from hybrid.types import InputError
 from learned.device import device_of
-from learned.frames import FrameSequence
+from learned.frames import FrameSequence, open_sequence
 from learned.infer import infer_sequence
 from learned.metrics import (
     dom,
@@ -25,6 +29,23 @@ from learned.metrics import (
 from learned.model import DepthModel, to_tensor
 
 DEPTH_KEYS = ("mre", "dr_mre", "dom", "abs_rel", "sq_rel", "rmse", "delta1")
+
+
+def head_focal_lengths(model: DepthModel, folders: list[Path],
+                       open_procedure: Callable[[Path, tuple[int, int]], FrameSequence]
+                       = open_sequence) -> dict[str, dict[str, float]]:
+    """fx_true and the head's fx_head (the median K over all consecutive pairs, as eval-depth
+    reads it) of each simulated procedure in `folders`, keyed "folder/procedure" as in
+    eval-depth's JSON; open_procedure(path, size) opens each one."""
+    size = (model.config.height, model.config.width)
+    readings = {}
+    for folder in folders:
+        for procedure in list_procedures(folder):
+            seq = open_procedure(procedure.path, size)
+            head = np.median(infer_sequence(model, seq, depth=False).K_pairs, axis=0)
+            readings[f"{folder.name}/{procedure.path.name}"] = {
+                "fx_true": float(seq.camera.fx), "fx_head": float(head[0, 0])}
+    return readings
 
 
 def scored_depths(model: DepthModel, seq: FrameSequence, count: int = 24

@@ -46,8 +46,13 @@ class DepthModel(nn.Module):
                                torch.Tensor]:
         """Motion a->b and b->a (axis-angle, translation each), and K averaged over both orders.
 
-        a, b: (B, 3, H, W). The a->b transform maps points of camera a into camera b.
+        a, b: (B, 3, H, W). The a->b transform maps points of camera a into camera b. While
+        training (the motion network in training mode, gradients on), config.motion_noise adds
+        Gaussian noise to both frames, of one standard deviation per pair.
         """
+        if self.config.motion_noise and self.motion.training and torch.is_grad_enabled():
+            sigma = self.config.motion_noise * torch.rand(a.shape[0], 1, 1, 1, device=a.device)
+            a, b = a + sigma * torch.randn_like(a), b + sigma * torch.randn_like(b)
         rotation, translation, K = self.motion(torch.cat([torch.cat([a, b], 1),
                                                           torch.cat([b, a], 1)], 0))
         n = a.shape[0]

@@ -457,3 +457,31 @@ def test_a_finished_run_rerun_with_other_depth_views_writes_its_model_again(tmp_
     inferred = infer_sequence(model, seq, gaps=()).depth[picks]
     assert np.allclose(scored, views, rtol=1e-5) and np.allclose(inferred, views, rtol=1e-5)
     assert not np.allclose(views, own, rtol=1e-3)
+
+
+def test_motion_noise_reaches_the_motion_network_only_while_training(batch):
+    """motion_noise adds noise of one standard deviation per pair, at most motion_noise, to
+    the frames the motion network reads while training; not under no_grad (the recomputed
+    statistics) nor in eval mode (inference)."""
+    frames, _ = batch
+    a, b = frames[:, 1], frames[:, 0]
+    torch.manual_seed(0)
+    model = DepthModel(replace(TINY, motion_noise=0.05))
+    seen = []
+    model.motion.register_forward_pre_hook(lambda module, args: seen.append(args[0].detach()))
+    model.train()
+    model.pair_motion(a, b)
+    with torch.no_grad():
+        model.pair_motion(a, b)
+    model.eval()
+    model.pair_motion(a, b)
+    clean = torch.cat([torch.cat([a, b], 1), torch.cat([b, a], 1)], 0)
+    assert torch.equal(seen[1], clean) and torch.equal(seen[2], clean)
+    n = a.shape[0]
+    assert torch.equal(seen[0][:n, :3], seen[0][n:, 3:])  # both orders read the same frames
+    noise = (seen[0] - clean)[:n]
+    std_a, std_b = noise[:, :3].flatten(1).std(1), noise[:, 3:].flatten(1).std(1)
+    assert bool((std_a > 0).all()) and float(std_a.max()) < 0.05 * 1.05
+    assert torch.allclose(std_a, std_b, rtol=0.05)  # one standard deviation per pair
+    with pytest.raises(ValueError, match="motion_noise"):
+        replace(TINY, motion_noise=-0.01)

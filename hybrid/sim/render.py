@@ -18,6 +18,15 @@ _REFERENCE_DISTANCE_CM = 2.0
 """Distance at which the diffuse irradiance equals the style's light gain."""
 
 
+def vignette(height: int, width: int, strength: float) -> np.ndarray:
+    """(H, W) float32 factor on linear intensity: 1 at the centre, 1 - strength at the corners,
+    falling with the squared distance from the centre."""
+    w, u = np.mgrid[0:height, 0:width].astype(np.float64)
+    radius2 = ((u - (width - 1) / 2) ** 2 + (w - (height - 1) / 2) ** 2) / (
+        ((width - 1) / 2) ** 2 + ((height - 1) / 2) ** 2)
+    return (1.0 - strength * radius2).astype(np.float32)
+
+
 class ColonRenderer:
     """Renders one colon, with its texture and style, for one camera."""
 
@@ -42,9 +51,7 @@ class ColonRenderer:
         self._rays_cam = np.stack([(u - camera.cx) / camera.fx, (w - camera.cy) / camera.fy,
                                    np.ones(u.shape)], axis=-1).astype(np.float32)
         self._ray_len = np.linalg.norm(self._rays_cam, axis=-1)  # the same in any orientation
-        radius2 = ((u - (camera.width - 1) / 2) ** 2 + (w - (camera.height - 1) / 2) ** 2) / (
-            ((camera.width - 1) / 2) ** 2 + ((camera.height - 1) / 2) ** 2)
-        self._vignette = (1.0 - style.vignetting * radius2)[..., None].astype(np.float32)
+        self._vignette = vignette(camera.height, camera.width, style.vignetting)[..., None]
 
     def render(self, pose: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
         """RGB uint8 (H, W, 3) and z-depth float32 (H, W), 0 where no wall was hit."""
