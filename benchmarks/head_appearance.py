@@ -51,9 +51,10 @@ def change(args: argparse.Namespace, style: Style, height: int, width: int
 
 
 def changed(args: argparse.Namespace, path: Path, size: tuple[int, int]) -> FrameSequence:
-    """Procedure `path` as open_sequence opens it, its frames changed if its style is named."""
+    """Procedure `path` as open_sequence opens it (without its depth and poses, which the head
+    does not read), its frames changed if its style is named."""
     proc = Procedure.open(path)
-    style, cam, load = get_style(proc.meta["config"]["style"]), proc.camera, proc.rgb
+    style, cam, load = get_style(proc.style), proc.camera, proc.rgb
     if style.name in args.styles:
         alter = change(args, style, cam.height, cam.width)
         load = lambda i: alter(i, proc.rgb(i))  # noqa: E731
