@@ -27,8 +27,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from hybrid.dataset import Procedure
-from hybrid.sim.appearance import Style, get_style
+from hybrid.dataset import Procedure, list_procedures
+from hybrid.sim.appearance import STYLES, Style, get_style
 from hybrid.sim.render import vignette
 from learned.evaluate import head_focal_lengths
 from learned.frames import FrameSequence
@@ -71,7 +71,7 @@ def main() -> None:
     parser.add_argument("--model", type=Path, required=True, help="a train-depth model")
     parser.add_argument("--data", type=Path, nargs="+", required=True,
                         help="folders of simulated procedures")
-    parser.add_argument("--styles", nargs="+", required=True,
+    parser.add_argument("--styles", nargs="+", required=True, choices=sorted(STYLES),
                         help="the styles whose images are changed")
     what = parser.add_mutually_exclusive_group(required=True)
     what.add_argument("--vignetting", type=float, help="the vignetting to swap in")
@@ -80,8 +80,15 @@ def main() -> None:
     what.add_argument("--dim", type=float, help="brightness factor")
     parser.add_argument("--out", type=Path, required=True, help="JSON to write")
     args = parser.parse_args()
-    for name in args.styles:
-        get_style(name)  # an unknown style is refused, not silently left unchanged
+    if not (args.vignetting is None or 0 <= args.vignetting < 1):
+        parser.error(f"--vignetting must lie in [0, 1), got {args.vignetting}")
+    if not (args.blur is None or args.blur > 0) or not (args.dim is None or args.dim > 0):
+        parser.error("--blur and --dim must be positive")
+    if not (args.noise is None or args.noise >= 0):
+        parser.error(f"--noise must be >= 0, got {args.noise}")
+    found = {Procedure.open(p.path).style for folder in args.data for p in list_procedures(folder)}
+    if not found & set(args.styles):
+        parser.error(f"no procedure in --data has a style of {args.styles} (found {sorted(found)})")
     model = load_depth_model(args.model)
     procedures = head_focal_lengths(model, args.data, partial(changed, args))
     args.out.write_text(json.dumps({"procedures": procedures}, indent=1))

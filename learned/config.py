@@ -139,9 +139,10 @@ class DepthConfig:
     """Training only: Gaussian noise added to each frame the motion network reads (not to the
     images the loss compares; not clipped), its standard deviation (0..1 scale) drawn per pair
     uniformly from [0, motion_noise], so that the head is less able to read a style's sensor
-    noise as its focal length (docs/depth.md, "What in the dusk images moves the head?"); 0:
-    off. The running batch-norm statistics are then gathered on noisy frames and inference
-    reads clean ones: recompute them (bn_recompute_batches) before reading the head."""
+    noise as its focal length (docs/depth.md, section "Cameras shared by the styles"); 0:
+    off. It reaches the zoom and map crop batches too, after their enlargement. The running
+    batch-norm statistics are then gathered on noisy frames and inference reads clean ones:
+    recompute them (bn_recompute_batches) before reading the head."""
     maps: str = ""
     """Folder of structure-from-motion maps of the training inputs (`c2d2 sfm-maps`); each
     step then also draws a batch of triplets from their agreeing stretches

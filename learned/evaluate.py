@@ -31,9 +31,11 @@ from learned.model import DepthModel, to_tensor
 DEPTH_KEYS = ("mre", "dr_mre", "dom", "abs_rel", "sq_rel", "rmse", "delta1")
 
 
+Opener = Callable[[Path, tuple[int, int]], FrameSequence]
+
+
 def head_focal_lengths(model: DepthModel, folders: list[Path],
-                       open_procedure: Callable[[Path, tuple[int, int]], FrameSequence]
-                       = open_sequence) -> dict[str, dict[str, float]]:
+                       open_procedure: Opener = open_sequence) -> dict[str, dict[str, float]]:
     """fx_true and the head's fx_head (the median K over all consecutive pairs, as eval-depth
     reads it) of each simulated procedure in `folders`, keyed "folder/procedure" as in
     eval-depth's JSON; open_procedure(path, size) opens each one."""

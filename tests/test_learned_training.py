@@ -481,7 +481,8 @@ def test_motion_noise_reaches_the_motion_network_only_while_training(batch):
     assert torch.equal(seen[0][:n, :3], seen[0][n:, 3:])  # both orders read the same frames
     noise = (seen[0] - clean)[:n]
     std_a, std_b = noise[:, :3].flatten(1).std(1), noise[:, 3:].flatten(1).std(1)
-    assert bool((std_a > 0).all()) and float(std_a.max()) < 0.05 * 1.05
-    assert torch.allclose(std_a, std_b, rtol=0.05)  # one standard deviation per pair
+    assert bool((std_a > 0).all()) and float(std_a.max()) <= 0.05
+    assert torch.allclose(std_a, std_b, rtol=0.05)  # one standard deviation per pair ...
+    assert float(std_a.max() / std_a.min()) > 1.05  # ... drawn for each pair
     with pytest.raises(ValueError, match="motion_noise"):
         replace(TINY, motion_noise=-0.01)
