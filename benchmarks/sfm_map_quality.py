@@ -64,10 +64,10 @@ def main() -> None:
         poses, fx, _, stretch, points = triplets.maps[0]
         used = np.unique(stretch[stretch >= 0])
         gap = sampler.gaps[k]
+        signed = [fx[s] / seq.camera.K[0, 0] - 1 for s in used]
         row = {"procedure": seq.name, "stretches": len(fx),
                "mapped": int(np.isfinite(fx).sum()), "agreeing": len(used),
-               "fx_rel": [abs(fx[s] / seq.camera.K[0, 0] - 1) for s in used],
-               "fx_signed": [fx[s] / seq.camera.K[0, 0] - 1 for s in used],
+               "fx_rel": [abs(e) for e in signed], "fx_signed": signed,
                "triplets": len(triplets.triplets), "depth": [], "rotation": [],
                "translation": [], "net_rotation": [], "net_translation": []}
         for _, t in triplets.triplets[::args.every]:
