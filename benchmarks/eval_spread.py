@@ -1,7 +1,9 @@
 """How much one procedure weighs in an evaluation: each branch's (or mode's) MAE over all
 segments and the largest change when one procedure's segments are left out; then its MAE
 and bias by the segment's place in its video (first, middle, last: a video's first segment
-has context frames after it only, its last before it only).
+has context frames after it only, its last before it only); for `c2d2 eval`, the geometric
+branch's MAE and bias also by its support (the share of the segment's expected wall on the
+lumen fitted to the reconstruction: all of it, at least half, less than half).
 
 Reads the eval.json of `c2d2 eval` (branches learned and geometric) or the geometric_eval.json
 of benchmarks/geometric_eval.py (each of its modes).
@@ -27,6 +29,8 @@ class Row(NamedTuple):
     """How many segments the procedure has."""
     error: float
     """Predicted minus true coverage."""
+    support: float | None = None
+    """The geometric branch's support (c2d2 eval written since it had one), else None."""
 
 
 def errors(data: dict) -> dict[str, list[Row]]:
@@ -36,7 +40,8 @@ def errors(data: dict) -> dict[str, list[Row]]:
         for s in data["segments"]:
             counts[s["procedure"]] = max(counts.get(s["procedure"], 0), s["segment"] + 1)
         return {branch: [Row(s["procedure"], s["segment"], counts[s["procedure"]],
-                             s[branch] - s["truth"])
+                             s[branch] - s["truth"],
+                             s.get("geometric_support") if branch == "geometric" else None)
                          for s in data["segments"] if s[branch] is not None]
                 for branch in ("learned", "geometric")}
     rows: dict[str, list[Row]] = {}
@@ -49,6 +54,14 @@ def errors(data: dict) -> dict[str, list[Row]]:
                     for k, (p, t) in enumerate(zip(result["pred"], truth, strict=True))
                     if p is not None and np.isfinite(p))
     return rows
+
+
+def support_bin(row: Row) -> str | None:
+    """The row's support as 'all', 'half or more' or 'under half' (None: not known)."""
+    if row.support is None:
+        return None
+    return "all" if row.support >= 1 else "half or more" if row.support >= 0.5 \
+        else "under half"
 
 
 def place(row: Row) -> str:
@@ -74,6 +87,12 @@ def main() -> None:
         print(f"{'':13s} by the segment's place in its video: " + ", ".join(
             f"{name} MAE {np.abs(e).mean():.3f} bias {np.mean(e):+.3f} ({len(e)})"
             for name, e in by_place.items() if e))
+        by_support = {name: [r.error for r in rows if support_bin(r) == name]
+                      for name in ("all", "half or more", "under half")}
+        if any(by_support.values()):
+            print(f"{'':13s} by the support of its V: " + ", ".join(
+                f"{name} MAE {np.abs(e).mean():.3f} bias {np.mean(e):+.3f} ({len(e)})"
+                for name, e in by_support.items() if e))
 
 
 if __name__ == "__main__":

@@ -7,13 +7,15 @@ work folder gets one of two nudges, and the stages after it run again:
   - `reconstruction`: the smoothed poses' translations moved by --pose-nudge (normal noise
     per axis, in the network's unit: reconstruction.json's scale_cm_per_unit gives it in cm,
     10-15 for data/heldout); reconstruction and geometric coverage rerun.
-The stages that rerun take their settings from the current code, and the model files from the
-eval's. They first rerun without a nudge (so a change to those settings is measured too), and
-the nudged runs are compared with that. Each procedure's nudge is drawn from (seed, procedure
-name), so --procedures reruns a subset as the whole run nudged it. Prints the eval's and the
-unnudged rerun's geometric MAE and agreement, then, per seed, the geometric MAE against the
-truth, the 3-class agreement with the learned branch, the largest change of one segment's
-geometric coverage (and which), and the largest move of a smoothed camera position in cm.
+The stages that rerun take their settings from the current code, with --geometric FIELD=VALUE
+overriding a field of hybrid.geometric_coverage.GeometricConfig (to try another setting on a
+finished eval), and the model files from the eval's. They first rerun without a nudge (so a
+change to those settings is measured too), and the nudged runs are compared with that (no
+--seeds: only that rerun). Each procedure's nudge is drawn from (seed, procedure name), so
+--procedures reruns a subset as the whole run nudged it. Prints the eval's and the unnudged
+rerun's geometric MAE, bias and 3-class accuracy against the truth and the agreement with the
+learned branch, then the same per seed with the largest change of one segment's geometric
+coverage (and which), and the largest move of a smoothed camera position in cm.
 
     python benchmarks/geometric_noise.py --eval data/eval-heldout-shipped --stage posegraph \
         --seeds 0 1 --out /tmp/noise
@@ -31,7 +33,9 @@ import numpy as np
 
 from hybrid import workdir as W
 from hybrid.evaluate import summarise
+from hybrid.geometric_coverage import GeometricConfig
 from hybrid.pipeline import Models, RunConfig, run_video
+from learned.config import parse_overrides
 
 RERUN = {"posegraph": [W.POSES, W.POSES_RAW, W.ODOMETRY], "reconstruction": []}
 SETTINGS = {"posegraph": ["odometry", "posegraph", "reconstruction", "geometric"],
@@ -56,10 +60,11 @@ def nudge(work: Path, stage: str, rng: np.random.Generator, pose_nudge: float) -
         np.save(work / W.POSES, poses)
 
 
-def reset(work: Path, stage: str) -> None:
-    """Give `work` the current settings of the stages that rerun, and delete their outputs."""
+def reset(work: Path, stage: str, config: RunConfig) -> None:
+    """Give `work` the settings of `config` for the stages that rerun, and delete their
+    outputs."""
     saved = json.loads((work / W.CONFIG).read_text())
-    current = json.loads(json.dumps(asdict(RunConfig())))
+    current = json.loads(json.dumps(asdict(config)))
     saved["config"].update({key: current[key] for key in SETTINGS[stage]})
     W.write_json(work / W.CONFIG, saved)
     for name in RERUN[stage] + DOWNSTREAM:
@@ -67,15 +72,17 @@ def reset(work: Path, stage: str) -> None:
         shutil.rmtree(path) if path.is_dir() else path.unlink(missing_ok=True)
 
 
-def eval_config(folder: Path) -> RunConfig:
-    """The current settings with the model files the eval ran with (read from a work folder)."""
+def eval_config(folder: Path, geometric: dict) -> RunConfig:
+    """The current settings, the geometric ones overridden by `geometric`, with the model files
+    the eval ran with (read from a work folder)."""
     work = next(folder.glob(f"*/{W.CONFIG}"), None)
     if work is None:
         raise SystemExit(f"{folder} holds no work folder of a procedure; give the --out of a "
                          f"finished c2d2 eval")
     saved = json.loads(work.read_text())["config"]
     return replace(RunConfig(), depth_checkpoint=saved["depth_checkpoint"],
-                   coverage_checkpoint=saved["coverage_checkpoint"])
+                   coverage_checkpoint=saved["coverage_checkpoint"],
+                   geometric=replace(GeometricConfig(), **geometric))
 
 
 def rerun(args: argparse.Namespace, rows: list[dict], config: RunConfig, models: Models,
@@ -91,7 +98,7 @@ def rerun(args: argparse.Namespace, rows: list[dict], config: RunConfig, models:
         if seed is not None:
             rng = np.random.default_rng([seed, zlib.crc32(src.name.encode())])
             nudge(work, args.stage, rng, args.pose_nudge)
-        reset(work, args.stage)
+        reset(work, args.stage, config)
         run_video(Path(procedure), work, config, models, progress=False,
                   echo=lambda _: None)
         table = json.loads((work / W.COVERAGE_JSON).read_text())["segments"]
@@ -107,26 +114,35 @@ def rerun(args: argparse.Namespace, rows: list[dict], config: RunConfig, models:
 
 def summary_line(label: str, rows: list[dict]) -> str:
     summary = summarise(rows)
-    return (f"{label}: geometric MAE {summary['geometric']['mae']:.4f}, agreement "
-            f"{summary['branch_agreement']:.3f}")
+    geometric = summary["geometric"]
+    return (f"{label}: geometric MAE {geometric['mae']:.4f}, bias {geometric['bias']:+.4f}, "
+            f"3-class {geometric['3class']:.3f}, agreement {summary['branch_agreement']:.3f}")
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--eval", type=Path, required=True, help="output folder of c2d2 eval")
     parser.add_argument("--stage", choices=sorted(RERUN), default="posegraph")
-    parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1])
+    parser.add_argument("--seeds", type=int, nargs="*", default=[0, 1],
+                        help="nudge seeds (none: only the unnudged rerun)")
     parser.add_argument("--pose-nudge", type=float, default=1e-9,
                         help="with --stage reconstruction: the translations' noise")
     parser.add_argument("--procedures", nargs="*", help="only these (e.g. proc_0015)")
     parser.add_argument("--out", type=Path, required=True, help="scratch folder for the copies")
+    parser.add_argument("--geometric", action="append", default=[], metavar="FIELD=VALUE",
+                        help="override a GeometricConfig field in the stages that rerun, "
+                             "e.g. occlusion_tolerance=0.1 (repeatable)")
     args = parser.parse_args()
+    try:
+        geometric = parse_overrides(args.geometric, GeometricConfig())
+    except ValueError as err:
+        raise SystemExit(str(err)) from err
     evaluated = [r for r in json.loads((args.eval / "eval.json").read_text())["segments"]
                  if not args.procedures or Path(r["procedure"]).name in args.procedures]
     if not evaluated:
         raise SystemExit(f"no segments of {args.procedures} in {args.eval / 'eval.json'}; name "
                          f"procedures as its 'procedure' paths end (e.g. proc_0015)")
-    config = eval_config(args.eval)
+    config = eval_config(args.eval, geometric)
     models = Models.load(config)
     print(summary_line("as evaluated", evaluated))
     rows = rerun(args, evaluated, config, models, None)[0]

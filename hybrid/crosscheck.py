@@ -2,7 +2,8 @@
 
 Reads learned.json, geometric.json (or geometric_error.txt) and ingest.json from a work
 directory; writes coverage.json and coverage.csv with one row per segment: its time range,
-both coverages (default Δ pair), their difference, both 3-class labels, whether they agree, a
+both coverages (default Δ pair), the geometric one's support (the share of its expected wall
+on reconstructed surface), their difference, both 3-class labels, whether they agree, a
 deficient flag and an assessable flag.
 """
 
@@ -40,6 +41,9 @@ class SegmentRow:
     end_s: float
     learned: float | None
     geometric: float | None
+    geometric_support: float | None
+    """The share of the segment's expected wall that the geometric branch's lumen was fitted to
+    (the rest is its straight continuation beyond the reconstructed surface)."""
     difference: float | None
     """learned - geometric."""
     learned_class: int | None
@@ -90,11 +94,11 @@ def cross_check(out: Path, ingested: Ingested, config) -> CrossCheck:
     """Join the branches' segment coverages (config: a RunConfig's thresholds)."""
     out = Path(out)
     learned = json.loads((out / W.LEARNED).read_text())["segments"]
-    geometric, error = {}, None
+    geometric, support, error = {}, {}, None
     if (out / W.GEOMETRIC).is_file():
         key = pair_key(DEFAULT_PAIR_CM)
-        geometric = {s["index"]: s["coverage"][key]
-                     for s in json.loads((out / W.GEOMETRIC).read_text())["segments"]}
+        for s in json.loads((out / W.GEOMETRIC).read_text())["segments"]:
+            geometric[s["index"]], support[s["index"]] = s["coverage"][key], s.get("support")
     elif (out / W.GEOMETRIC_ERROR).is_file():
         error = (out / W.GEOMETRIC_ERROR).read_text().strip()
     usable = ingested.usable
@@ -109,7 +113,8 @@ def cross_check(out: Path, ingested: Ingested, config) -> CrossCheck:
         classes = coverage_class(value_l), coverage_class(value_g)
         rows.append(SegmentRow(
             index, start, stop, round(start / ingested.fps, 3), round(stop / ingested.fps, 3),
-            value_l, value_g, None if value_g is None else value_l - value_g,
+            value_l, value_g, support.get(index),
+            None if value_g is None else value_l - value_g,
             classes[0], classes[1], None if value_g is None else classes[0] == classes[1],
             mean, bool(assessable and mean is not None and mean < config.deficient_below),
             bool(assessable), fraction))

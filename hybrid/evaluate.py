@@ -115,7 +115,8 @@ def evaluate_pipeline(procedures: list[Procedure], out: Path, config: RunConfig,
         for row, true in zip(table, truth, strict=True):
             rows.append({"procedure": str(proc.path), "segment": row["index"],
                          "truth": float(true), "learned": row["learned"],
-                         "geometric": row["geometric"], "combined": row["coverage"]})
+                         "geometric": row["geometric"], "combined": row["coverage"],
+                         "geometric_support": row.get("geometric_support")})
         echo(f"{proc.path}: truth {np.round(truth, 2).tolist()} learned "
              f"{[round(r['learned'], 2) for r in table]} geometric "
              f"{[None if r['geometric'] is None else round(r['geometric'], 2) for r in table]}")

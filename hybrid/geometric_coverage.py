@@ -13,7 +13,9 @@ pixels around its projection (the tube only approximates the wall, which folds l
 a fraction of the radius; the largest of four keeps a wall seen at a grazing angle, whose depth
 changes fast from pixel to pixel, from hiding itself).
 Coverage = seen area / expected area, as in the ground truth (hybrid.coverage) with tube cells
-in place of mesh vertices.
+in place of mesh vertices. Each segment's support is the share of its expected wall lying where
+the lumen was fitted to the surface (beyond the surface the tube is a straight continuation);
+little support means the coverage rests on the tube's shape more than on the reconstruction.
 """
 
 from __future__ import annotations
@@ -100,6 +102,11 @@ class GeometricCoverage:
     """(L, K) int32: index of the first segment that saw each cell, -1 if none did."""
     expected: np.ndarray
     """(L, K) bool: the cell lies in the default-pair V of some segment."""
+    support: list[float | None]
+    """Per segment, the share of its default-pair V (by area) where the lumen was fitted to
+    the reconstructed surface rather than continued straight beyond it (None where V is
+    empty or the default pair was not asked for): how much of the coverage rests on wall the
+    video reconstructed."""
 
     def labels(self, pair: tuple[float, float] = DEFAULT_PAIR_CM) -> np.ndarray:
         key = pair_key(pair)
@@ -136,9 +143,11 @@ def geometric_coverage(lumen: FittedLumen, poses: np.ndarray, depth: Sequence[np
     fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
     lo = min(d0 for d0, _ in delta_pairs)
     hi = max(d1 for _, d1 in delta_pairs)
+    on_wall = (np.ones(len(cells.ell), dtype=bool) if lumen.fitted is None else
+               np.interp(cells.ell, lumen.arclength, lumen.fitted.astype(float)) >= 0.5)
     first_seen = np.full(cells.area.shape, -1, dtype=np.int32)
     expected = np.zeros(cells.area.shape, dtype=bool)
-    segments = []
+    segments, support = [], []
     bar = tqdm(total=n - n % T, desc="geometric coverage", unit="frame", disable=not progress)
     for start in range(0, n - T + 1, T):
         e_min, e_max = camera_ell[start:start + T].min(), camera_ell[start:start + T].max()
@@ -170,7 +179,7 @@ def geometric_coverage(lumen: FittedLumen, poses: np.ndarray, depth: Sequence[np
             bar.update(1)
         rows = first_seen[a:b]
         rows[(rows < 0) & seen] = len(segments)
-        coverage = {}
+        coverage, segment_support = {}, None
         for d0, d1 in delta_pairs:
             in_v = (cells.ell[a:b] >= e_min + d0) & (cells.ell[a:b] <= e_max + d1)
             total = cells.area[a:b][in_v].sum()
@@ -178,7 +187,10 @@ def geometric_coverage(lumen: FittedLumen, poses: np.ndarray, depth: Sequence[np
                                                   / total) if total > 0 else None)
             if (d0, d1) == DEFAULT_PAIR_CM:
                 expected[a:b][in_v] = True
+                if total > 0:
+                    segment_support = float(cells.area[a:b][in_v & on_wall[a:b]].sum() / total)
         segments.append(SegmentCoverage(len(segments), start, start + T, float(e_min),
                                         float(e_max), coverage))
+        support.append(segment_support)
     bar.close()
-    return GeometricCoverage(segments, cells, first_seen, expected)
+    return GeometricCoverage(segments, cells, first_seen, expected, support)

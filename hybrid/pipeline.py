@@ -219,7 +219,7 @@ class _Run:
         save_maps(segments, self.path(W.MAPS), f"{self.source.name}: wall seen (green) and "
                   f"missed (red) in each segment's V")
         W.write_json(self.path(W.GEOMETRIC), {
-            "segments": [vars(s.segment) for s in segments],
+            "segments": [{**vars(s.segment), "support": s.support} for s in segments],
             "errors": {str(s.segment.index): s.error for s in segments if s.error}})
 
     def travel(self, count: int) -> np.ndarray:

@@ -46,6 +46,11 @@ class LocalSegment:
     result: GeometricCoverage | None
     error: str | None = None
 
+    @property
+    def support(self) -> float | None:
+        """The share of the segment's V on wall its lumen was fitted to (None: no result)."""
+        return None if self.result is None else self.result.support[0]
+
 
 def local_segment_coverage(depth: Sequence[np.ndarray], K: np.ndarray, poses: np.ndarray,
                            segment_frames: int, context: int, region: np.ndarray | None,

@@ -243,6 +243,22 @@ def test_a_segment_is_the_union_of_its_frames():
     assert union == pytest.approx(expected.value, abs=0.02)
 
 
+def test_support_is_the_share_of_v_on_the_fitted_lumen():
+    """The same axis, fitted to the surface only up to ℓ = 4.5 cm and continued straight from
+    5 cm: the forward camera's V(1, 4) = [3.02, 6.02] lies on fitted wall up to the midpoint
+    4.75, so its support is (4.75 - 3.02) / 3; the coverage does not depend on it."""
+    z = np.arange(0.0, 10.01, 0.5)
+    part = FittedLumen(np.stack([0 * z, 0 * z, z], 1), np.full(len(z), RADIUS), z <= 4.5)
+    depth = [cylinder_depth(FORWARD_CAMERA, FORWARD)]
+    cut = geometric_coverage(part, FORWARD[None], depth, FORWARD_CAMERA.K, config=FINE)
+    whole = geometric_coverage(AXIS, FORWARD[None], depth, FORWARD_CAMERA.K, config=FINE)
+    assert cut.support[0] == pytest.approx((4.75 - (ELL + 1.0)) / 3.0,
+                                           abs=FINE.cell_length_cm / 3.0)
+    assert whole.support == [1.0]  # no mask: every point fitted
+    key = pair_key((1.0, 4.0))
+    assert cut.segments[0].coverage[key] == pytest.approx(whole.segments[0].coverage[key])
+
+
 def test_looking_backwards_sees_nothing_and_an_occluder_hides_everything():
     back = geometric_coverage(AXIS, BACKWARD[None], [cylinder_depth(FORWARD_CAMERA, BACKWARD)],
                               FORWARD_CAMERA.K, config=FINE)

@@ -41,9 +41,10 @@ SEED = 0
 
 STAGES = ("ingest", "depth", "posegraph", "reconstruction", "geometric", "learned", "report")
 CSV_COLUMNS = ["index", "start_frame", "stop_frame", "start_s", "end_s", "learned",
-               "geometric", "difference", "learned_class", "geometric_class", "agree",
-               "coverage", "deficient", "assessable", "usable_fraction"]
-"""coverage.csv as README.md documents it: time range, both coverages, their difference, both
+               "geometric", "geometric_support", "difference", "learned_class",
+               "geometric_class", "agree", "coverage", "deficient", "assessable", "usable_fraction"]
+"""coverage.csv as README.md documents it: time range, both coverages (and the geometric one's
+support), their difference, both
 3-class labels, agreement, the mean coverage, deficient, assessable (and its usable fraction)."""
 
 # Tolerances of |branch - truth| per segment, each about twice the branch's mean absolute error
@@ -186,6 +187,7 @@ def test_both_branches_are_close_to_the_truth(pipeline_run, procedure):
     assert np.abs(learned - truth).max() <= LEARNED_TOLERANCE, (learned, truth)
     assert np.abs(geometric - truth).max() <= GEOMETRIC_TOLERANCE, (geometric, truth)
     for row, value_l, value_g in zip(rows, learned, geometric, strict=True):
+        assert 0 <= row["geometric_support"] <= 1
         assert row["difference"] == pytest.approx(value_l - value_g)
         assert row["coverage"] == pytest.approx((value_l + value_g) / 2)
 
@@ -605,8 +607,11 @@ def hand_made_work_dir(out: Path, geometric: list[float | None] | None) -> Inges
     if geometric is None:
         (out / W.GEOMETRIC_ERROR).write_text("reconstruction: no surface\n")
     else:
+        # support 1, 0.75, 0.5, 0.25, and none given for the last (a work folder written
+        # before geometric.json had it)
         W.write_json(out / W.GEOMETRIC, {"segments": [
             {"index": i, "coverage": {"1-3": 0.0, "1-4": v, "1-6": 1.0}}
+            | ({"support": 1 - 0.25 * i} if i < 4 else {})
             for i, v in enumerate(geometric)]})
     dark, over, blur = ([False] * 50 for _ in range(3))
     for t in range(20, 25):  # segment 2: 5 of 10 frames usable, exactly the threshold
@@ -631,6 +636,7 @@ def test_cross_check_by_hand(tmp_path):
     assert [r.agree for r in rows] == [True, False, False, True, None]
     assert table.agreement == 0.5  # 2 of the 4 segments with both values
     assert [r.difference for r in rows] == pytest.approx([0.05, -0.25, 0.25, 0.10, None])
+    assert [r.geometric_support for r in rows] == [1.0, 0.75, 0.5, 0.25, None]
     # the mean of the branches that gave a value
     assert [r.coverage for r in rows] == pytest.approx([0.875, 0.425, 0.375, 0.15, 0.40])
     assert [r.usable_fraction for r in rows] == pytest.approx([1.0, 1.0, 0.5, 0.4, 0.9])
@@ -653,7 +659,8 @@ def test_cross_check_without_the_geometric_branch(tmp_path):
     table = cross_check(tmp_path / "work", ingested, RunConfig())
     assert table.geometric_error == "reconstruction: no surface"
     assert table.agreement is None
-    assert all(r.geometric is None and r.agree is None for r in table.rows)
+    assert all(r.geometric is None and r.geometric_support is None and r.agree is None
+               for r in table.rows)
     assert [r.coverage for r in table.rows] == [0.90, 0.30, 0.50, 0.20, 0.40]
     # learned alone: 0.30 is now deficient, 0.50 no longer; 0.20 is not assessable
     assert [r.deficient for r in table.rows] == [False, True, False, False, False]
