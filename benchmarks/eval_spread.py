@@ -3,7 +3,8 @@ segments and the largest change when one procedure's segments are left out; then
 and bias by the segment's place in its video (first, middle, last: a video's first segment
 has context frames after it only, its last before it only); for `c2d2 eval`, the geometric
 branch's MAE and bias also by its support (the share of the segment's expected wall on the
-lumen fitted to the reconstruction: all of it, at least half, less than half).
+lumen fitted to the reconstruction: all of it, at least half, less than half), and the
+branches' 3-class agreement by the same bins.
 
 Reads the eval.json of `c2d2 eval` (branches learned and geometric) or the geometric_eval.json
 of benchmarks/geometric_eval.py (each of its modes).
@@ -20,6 +21,8 @@ from pathlib import Path
 from typing import NamedTuple
 
 import numpy as np
+
+from learned.coverage_eval import three_class
 
 
 class Row(NamedTuple):
@@ -56,12 +59,11 @@ def errors(data: dict) -> dict[str, list[Row]]:
     return rows
 
 
-def support_bin(row: Row) -> str | None:
-    """The row's support as 'all', 'half or more' or 'under half' (None: not known)."""
-    if row.support is None:
+def support_bin(support: float | None) -> str | None:
+    """A geometric support as 'all', 'half or more' or 'under half' (None: not known)."""
+    if support is None:
         return None
-    return "all" if row.support >= 1 else "half or more" if row.support >= 0.5 \
-        else "under half"
+    return "all" if support >= 1 else "half or more" if support >= 0.5 else "under half"
 
 
 def place(row: Row) -> str:
@@ -74,7 +76,8 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("json", type=Path,
                         help="eval.json of c2d2 eval, or geometric_eval.json")
-    for branch, rows in errors(json.loads(parser.parse_args().json.read_text())).items():
+    data = json.loads(parser.parse_args().json.read_text())
+    for branch, rows in errors(data).items():
         procedures = sorted({r.procedure for r in rows})
         mae = np.mean([abs(r.error) for r in rows])
         left_out = np.array([np.mean([abs(r.error) for r in rows if r.procedure != p])
@@ -87,12 +90,28 @@ def main() -> None:
         print(f"{'':13s} by the segment's place in its video: " + ", ".join(
             f"{name} MAE {np.abs(e).mean():.3f} bias {np.mean(e):+.3f} ({len(e)})"
             for name, e in by_place.items() if e))
-        by_support = {name: [r.error for r in rows if support_bin(r) == name]
+        by_support = {name: [r.error for r in rows if support_bin(r.support) == name]
                       for name in ("all", "half or more", "under half")}
         if any(by_support.values()):
             print(f"{'':13s} by the support of its V: " + ", ".join(
                 f"{name} MAE {np.abs(e).mean():.3f} bias {np.mean(e):+.3f} ({len(e)})"
                 for name, e in by_support.items() if e))
+    if "segments" in data:  # c2d2 eval: both branches
+        print_agreement_by_support(data["segments"])
+
+
+def print_agreement_by_support(segments: list[dict]) -> None:
+    """The branches' 3-class agreement by the geometric support's bin."""
+    both = [s for s in segments if s["learned"] is not None and s["geometric"] is not None
+            and s.get("geometric_support") is not None]
+    bins: dict[str, list[bool]] = {}
+    for s in both:
+        bins.setdefault(support_bin(s["geometric_support"]), []).append(
+            bool(three_class(s["learned"]) == three_class(s["geometric"])))
+    if bins:
+        print("agreement by the geometric support: " + ", ".join(
+            f"{name} {np.mean(bins[name]):.3f} ({len(bins[name])})"
+            for name in ("all", "half or more", "under half") if name in bins))
 
 
 if __name__ == "__main__":

@@ -3,8 +3,8 @@
 Reads learned.json, geometric.json (or geometric_error.txt) and ingest.json from a work
 directory; writes coverage.json and coverage.csv with one row per segment: its time range,
 both coverages (default Δ pair), the geometric one's support (the share of its expected wall
-on reconstructed surface), their difference, both 3-class labels, whether they agree, a
-deficient flag and an assessable flag.
+on reconstructed surface), their difference, both 3-class labels, whether they agree, the
+two combined, a deficient flag and an assessable flag.
 """
 
 from __future__ import annotations
@@ -24,6 +24,18 @@ from learned.coverage_eval import CLASS_EDGES, three_class
 
 CLASS_NAMES = ("mostly not covered", "partial", "mostly covered")
 """Names of the 3-class bins (learned.coverage_eval.CLASS_EDGES)."""
+
+
+def combined_coverage(learned: float | None, geometric: float | None,
+                      support: float | None) -> float | None:
+    """The report's coverage of a segment: the learned and geometric values averaged with
+    weights 1 and the geometric one's support, so that a geometric value resting on
+    extrapolated wall counts less (the plain mean where the support is not known, as in work
+    folders written before it was recorded); the one value where only one branch gave one."""
+    if geometric is None or learned is None:
+        return geometric if learned is None else learned
+    weight = 1.0 if support is None else support
+    return float((learned + weight * geometric) / (1.0 + weight))
 
 
 def coverage_class(value: float | None) -> int | None:
@@ -51,7 +63,7 @@ class SegmentRow:
     agree: bool | None
     """Both branches give the same 3-class label."""
     coverage: float | None
-    """Mean of the branches that gave a value."""
+    """The branches combined (see `combined_coverage`)."""
     deficient: bool
     """Assessable and coverage below the run's threshold."""
     assessable: bool
@@ -106,8 +118,7 @@ def cross_check(out: Path, ingested: Ingested, config) -> CrossCheck:
     for segment in learned:
         index, start, stop = segment["index"], segment["start"], segment["stop"]
         value_l, value_g = segment["coverage"], geometric.get(index)
-        values = [v for v in (value_l, value_g) if v is not None]
-        mean = float(np.mean(values)) if values else None
+        mean = combined_coverage(value_l, value_g, support.get(index))
         fraction = float(usable[start:stop].mean())
         assessable = fraction >= config.min_usable_fraction
         classes = coverage_class(value_l), coverage_class(value_g)

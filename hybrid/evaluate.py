@@ -1,10 +1,10 @@
 """The whole pipeline on simulated procedures, against their ground truth.
 
 Runs (or resumes) `run_video` on each procedure's RGB frames in out/<procedure>/, then compares
-per segment: learned and geometric coverage, and the report's combined coverage (their mean),
-against the truth (MAE, bias, 3-class accuracy), and the 3-class agreement between the two
-branches; the MAEs and the agreement with 95% intervals bootstrapped over procedures. Writes
-out/eval.json and out/eval_scatter.png.
+per segment: learned and geometric coverage, and the report's combined coverage
+(hybrid.crosscheck.combined_coverage), against the truth (MAE, bias, 3-class accuracy), and
+the 3-class agreement between the two branches; the MAEs and the agreement with 95% intervals
+bootstrapped over procedures. Writes out/eval.json and out/eval_scatter.png.
 """
 
 from __future__ import annotations

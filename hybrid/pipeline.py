@@ -73,8 +73,9 @@ class RunConfig:
     min_usable_fraction: float = 0.5
     """A segment is assessable when at least this fraction of its frames is usable."""
     deficient_below: float = CLASS_EDGES[0]
-    """A segment is deficient when its coverage (mean of the branches that ran) is below this:
-    the 'mostly not covered' class of the 3-class bins."""
+    """A segment is deficient when its coverage (the branches that ran, combined by
+    hybrid.crosscheck.combined_coverage) is below this: the 'mostly not covered' class of the
+    3-class bins."""
     odometry: OdometryConfig = field(default_factory=OdometryConfig)
     posegraph: PoseGraphConfig = field(default_factory=PoseGraphConfig)
     reconstruction: ReconstructionConfig = field(default_factory=ReconstructionConfig)

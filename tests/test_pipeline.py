@@ -189,7 +189,8 @@ def test_both_branches_are_close_to_the_truth(pipeline_run, procedure):
     for row, value_l, value_g in zip(rows, learned, geometric, strict=True):
         assert 0 <= row["geometric_support"] <= 1
         assert row["difference"] == pytest.approx(value_l - value_g)
-        assert row["coverage"] == pytest.approx((value_l + value_g) / 2)
+        weight = row["geometric_support"]
+        assert row["coverage"] == pytest.approx((value_l + weight * value_g) / (1 + weight))
 
 
 def test_report_is_self_contained(pipeline_run):
@@ -607,11 +608,11 @@ def hand_made_work_dir(out: Path, geometric: list[float | None] | None) -> Inges
     if geometric is None:
         (out / W.GEOMETRIC_ERROR).write_text("reconstruction: no surface\n")
     else:
-        # support 1, 0.75, 0.5, 0.25, and none given for the last (a work folder written
-        # before geometric.json had it)
+        # segment 1 has no support (a work folder written before geometric.json had it)
+        support = {0: 0.5, 2: 1.0, 3: 0.0, 4: None}
         W.write_json(out / W.GEOMETRIC, {"segments": [
             {"index": i, "coverage": {"1-3": 0.0, "1-4": v, "1-6": 1.0}}
-            | ({"support": 1 - 0.25 * i} if i < 4 else {})
+            | ({"support": support[i]} if i in support else {})
             for i, v in enumerate(geometric)]})
     dark, over, blur = ([False] * 50 for _ in range(3))
     for t in range(20, 25):  # segment 2: 5 of 10 frames usable, exactly the threshold
@@ -636,9 +637,11 @@ def test_cross_check_by_hand(tmp_path):
     assert [r.agree for r in rows] == [True, False, False, True, None]
     assert table.agreement == 0.5  # 2 of the 4 segments with both values
     assert [r.difference for r in rows] == pytest.approx([0.05, -0.25, 0.25, 0.10, None])
-    assert [r.geometric_support for r in rows] == [1.0, 0.75, 0.5, 0.25, None]
-    # the mean of the branches that gave a value
-    assert [r.coverage for r in rows] == pytest.approx([0.875, 0.425, 0.375, 0.15, 0.40])
+    assert [r.geometric_support for r in rows] == [0.5, None, 1.0, 0.0, None]
+    # learned and geometric weighted 1 : support (1 : 1 where it is not known); the one value
+    # where only one branch gave one
+    assert [r.coverage for r in rows] == pytest.approx(
+        [(0.90 + 0.5 * 0.85) / 1.5, 0.425, 0.375, 0.20, 0.40])
     assert [r.usable_fraction for r in rows] == pytest.approx([1.0, 1.0, 0.5, 0.4, 0.9])
     assert [r.assessable for r in rows] == [True, True, True, False, True]
     # segment 1: learned 0.30 alone is low, the mean 0.425 is not; segment 2: the mean 0.375
