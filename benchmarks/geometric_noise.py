@@ -103,7 +103,8 @@ def rerun(args: argparse.Namespace, rows: list[dict], config: RunConfig, models:
                   echo=lambda _: None)
         table = json.loads((work / W.COVERAGE_JSON).read_text())["segments"]
         mine = [r for r in rows if r["procedure"] == procedure]
-        nudged += [{**r, "geometric": t["geometric"], "combined": t["coverage"]}
+        nudged += [{**r, "geometric": t["geometric"], "combined": t["coverage"],
+                    "geometric_support": t.get("geometric_support")}
                    for r, t in zip(mine, table, strict=True)]
         base = args.out / f"{src.name}-{args.stage}-None"
         cm = json.loads((base / W.RECONSTRUCTION).read_text())["scale_cm_per_unit"]
@@ -135,8 +136,8 @@ def main() -> None:
     args = parser.parse_args()
     try:
         geometric = parse_overrides(args.geometric, GeometricConfig())
-    except ValueError as err:
-        raise SystemExit(str(err)) from err
+    except ValueError as err:  # its messages name --set, the option of the c2d2 commands
+        raise SystemExit(str(err).replace("--set", "--geometric", 1)) from err
     evaluated = [r for r in json.loads((args.eval / "eval.json").read_text())["segments"]
                  if not args.procedures or Path(r["procedure"]).name in args.procedures]
     if not evaluated:

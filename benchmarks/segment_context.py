@@ -7,7 +7,9 @@ pipeline's: half a segment), and its geometric coverage (Δ = 1-4 cm) and suppor
 with the truth. Prints the MAE and bias of each context, and of the rule that takes the first
 context, in the order given, whose support reaches --min-support (the last where none does):
 whether a wider window helps the segments whose own window left most of their wall to the
-lumen's straight continuation. Writes one JSON line per segment with --out.
+lumen's straight continuation. The reconstruction and coverage take their settings from the
+current code (as `c2d2 run` would now), the depth and poses from the eval's work folders.
+Writes one JSON line per segment with --out.
 
     python benchmarks/segment_context.py --eval data/eval-heldout --contexts 150 300 600
 """
@@ -56,6 +58,8 @@ def chosen(values: dict, contexts: list[int], min_support: float) -> float | Non
 
 def line(label: str, pred: list[float | None], truth: list[float]) -> str:
     ok = [(p, t) for p, t in zip(pred, truth, strict=True) if p is not None]
+    if not ok:
+        return f"{label}: no segment has a value"
     err = np.array([p - t for p, t in ok])
     return (f"{label}: MAE {np.abs(err).mean():.4f}, bias {err.mean():+.4f} "
             f"({len(ok)} of {len(truth)} segments)")

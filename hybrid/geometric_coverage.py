@@ -104,9 +104,10 @@ class GeometricCoverage:
     """(L, K) bool: the cell lies in the default-pair V of some segment."""
     support: list[float | None]
     """Per segment, the share of its default-pair V (by area) where the lumen was fitted to
-    the reconstructed surface rather than continued straight beyond it (None where V is
-    empty or the default pair was not asked for): how much of the coverage rests on wall the
-    video reconstructed."""
+    the reconstructed surface (`FittedLumen.fitted`: between its first and last fitted
+    cross-sections) rather than continued straight beyond it; None where V is empty or the
+    default pair was not asked for. How much of the coverage rests on wall the video
+    reconstructed."""
 
     def labels(self, pair: tuple[float, float] = DEFAULT_PAIR_CM) -> np.ndarray:
         key = pair_key(pair)

@@ -142,14 +142,14 @@ def _table(table: CrossCheck) -> str:
         return f"{value:.3f}" if isinstance(value, float) else str(value)
 
     head = ("segment", "time (s)", "learned", "geometric", "geometric support", "difference",
-            "learned class", "geometric class", "agree", "deficient", "assessable")
+            "learned class", "geometric class", "agree", "coverage", "deficient", "assessable")
     lines = ["<table><tr>" + "".join(f"<th>{h}</th>" for h in head) + "</tr>"]
     for r in table.rows:
         classes = [None if c is None else CLASS_NAMES[c]
                    for c in (r.learned_class, r.geometric_class)]
         cells = (r.index, f"{r.start_s:.1f}–{r.end_s:.1f}", r.learned, r.geometric,
                  r.geometric_support, r.difference, classes[0], classes[1], r.agree,
-                 r.deficient, r.assessable)
+                 r.coverage, r.deficient, r.assessable)
         style = ' class="deficient"' if r.deficient else ""
         lines.append(f"<tr{style}>" + "".join(f"<td>{fmt(c)}</td>" for c in cells) + "</tr>")
     return "\n".join(lines + ["</table>"])
@@ -164,7 +164,8 @@ def write_report(out: Path, table: CrossCheck, ingested: Ingested) -> Path:
              f"{ingested.input_height}. Deficient: coverage below {table.deficient_below:g}; "
              f"assessable: at least {table.min_usable_fraction:.0%} usable frames; "
              f"geometric support: the share of a segment's expected wall that the "
-             f"reconstruction reached (the rest is its lumen continued straight). "
+             f"reconstruction reached (the rest is its lumen continued straight); coverage: "
+             f"the branches combined, the geometric value weighted by its support. "
              f"Branch agreement (3 classes): "
              f"{'n/a' if table.agreement is None else f'{table.agreement:.0%}'}.</p>"]
     if ingested.decode_warning:

@@ -48,7 +48,8 @@ class LocalSegment:
 
     @property
     def support(self) -> float | None:
-        """The share of the segment's V on wall its lumen was fitted to (None: no result)."""
+        """The share of the segment's V on wall its lumen was fitted to (None: no result, or
+        an empty V; GeometricCoverage.support)."""
         return None if self.result is None else self.result.support[0]
 
 

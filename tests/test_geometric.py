@@ -246,17 +246,32 @@ def test_a_segment_is_the_union_of_its_frames():
 def test_support_is_the_share_of_v_on_the_fitted_lumen():
     """The same axis, fitted to the surface only up to ℓ = 4.5 cm and continued straight from
     5 cm: the forward camera's V(1, 4) = [3.02, 6.02] lies on fitted wall up to the midpoint
-    4.75, so its support is (4.75 - 3.02) / 3; the coverage does not depend on it."""
+    4.75, so its support is (4.75 - 3.02) / 3; the coverage does not depend on it. Support
+    weighs by area: with a radius r(ℓ) = 1 + ℓ / 2 the share is the integral of r over the
+    fitted part of V over that over V."""
     z = np.arange(0.0, 10.01, 0.5)
     part = FittedLumen(np.stack([0 * z, 0 * z, z], 1), np.full(len(z), RADIUS), z <= 4.5)
     depth = [cylinder_depth(FORWARD_CAMERA, FORWARD)]
     cut = geometric_coverage(part, FORWARD[None], depth, FORWARD_CAMERA.K, config=FINE)
     whole = geometric_coverage(AXIS, FORWARD[None], depth, FORWARD_CAMERA.K, config=FINE)
-    assert cut.support[0] == pytest.approx((4.75 - (ELL + 1.0)) / 3.0,
-                                           abs=FINE.cell_length_cm / 3.0)
+    cell = FINE.cell_length_cm / 3.0
+    assert cut.support[0] == pytest.approx((4.75 - (ELL + 1.0)) / 3.0, abs=cell)
     assert whole.support == [1.0]  # no mask: every point fitted
     key = pair_key((1.0, 4.0))
     assert cut.segments[0].coverage[key] == pytest.approx(whole.segments[0].coverage[key])
+
+    def integral(a: float, b: float) -> float:  # of 1 + ℓ / 2
+        return (b - a) + (b * b - a * a) / 4.0
+
+    lo, hi = ELL + 1.0, ELL + 4.0
+    wide = FittedLumen(part.points, 1.0 + z / 2.0, part.fitted)
+    tapered = geometric_coverage(wide, FORWARD[None], depth, FORWARD_CAMERA.K, config=FINE)
+    assert tapered.support[0] == pytest.approx(integral(lo, 4.75) / integral(lo, hi), abs=cell)
+    assert abs(integral(lo, 4.75) / integral(lo, hi) - (4.75 - lo) / 3.0) > 5 * cell
+    # no support where V is not measured: the default pair not asked for
+    other = geometric_coverage(part, FORWARD[None], depth, FORWARD_CAMERA.K, config=FINE,
+                               delta_pairs=((1.0, 3.0),))
+    assert other.support == [None]
 
 
 def test_looking_backwards_sees_nothing_and_an_occluder_hides_everything():

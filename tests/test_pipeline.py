@@ -44,8 +44,8 @@ CSV_COLUMNS = ["index", "start_frame", "stop_frame", "start_s", "end_s", "learne
                "geometric", "geometric_support", "difference", "learned_class",
                "geometric_class", "agree", "coverage", "deficient", "assessable", "usable_fraction"]
 """coverage.csv as README.md documents it: time range, both coverages (and the geometric one's
-support), their difference, both
-3-class labels, agreement, the mean coverage, deficient, assessable (and its usable fraction)."""
+support), their difference, both 3-class labels, agreement, the combined coverage, deficient,
+assessable (and its usable fraction)."""
 
 # Tolerances of |branch - truth| per segment, each about twice the branch's mean absolute error
 # on held-out simulated procedures (learned segment MAE 0.045-0.105, docs/coverage.md; geometric
@@ -382,6 +382,8 @@ def test_eval_scores_the_run_and_names_its_models(pipeline_run, procedure, tmp_p
     table = json.loads((out / W.COVERAGE_JSON).read_text())["segments"]
     truth = procedure.coverage.segment_labels()
     assert [r["learned"] for r in saved["segments"]] == [r["learned"] for r in table]
+    assert [r["geometric_support"] for r in saved["segments"]] == [
+        r["geometric_support"] for r in table]
     assert [r["truth"] for r in saved["segments"]] == pytest.approx(truth)
     learned_mae = np.mean([abs(r["learned"] - t) for r, t in zip(table, truth, strict=True)])
     assert saved["summary"]["learned"]["mae"] == pytest.approx(learned_mae)
