@@ -136,9 +136,13 @@ def local_row(mode: str, proc: Procedure, learned: dict, depth_true: list[np.nda
         depth = learned["depth"] if "depth" in swap else depth_true
         K = learned["K"] if "K" in swap else proc.camera.K
         poses = learned["poses"] if "poses" in swap else proc.poses
-        if "poses" in swap and "depth" not in swap:  # translations to the true depth's cm
+        # depth and translations must share one unit, which `scale` makes cm
+        if "poses" in swap and "depth" not in swap:  # learned translations to the true cm
             poses = poses.copy()
             poses[:, :3, 3] *= to_cm
+        if "depth" in swap and "poses" not in swap:  # true translations to the learned unit
+            poses = poses.copy()
+            poses[:, :3, 3] /= to_cm
         scale = to_cm if "depth" in swap else 1.0
     segment_frames = proc.coverage.segment_frames
     local = local_segment_coverage(depth, K, poses, segment_frames, segment_frames // 2, None,
