@@ -16,7 +16,8 @@ with the metric scale taken from the truth (one factor per procedure, the median
 to learned depth, applied to the learned depth and translations alike), and
   local-oracle  every input true
   local-metric  every input learned
-  local-depth   learned depth, true K and poses
+  local-depth   learned depth, true K and poses (the true translations put in the learned
+                depth's unit, which the scale turns into cm)
   local-K       learned K, true depth and poses
   local-poses   learned (smoothed) poses, true depth and K
 Prints MAE, bias and 3-class accuracy per mode, the lumen fit errors, and the frames/s of the
