@@ -9,7 +9,9 @@ Modes (each: pose graph where learned, TSDF, lumen fit, geometric coverage):
                 gaps, --skips), refined by RGB-D odometry (--no-odometry: not), smoothed by
                 the pose graph, scale from the typical-radius rule
   learned-local the same inputs, each segment reconstructed on its own window (the segment
-                and half a segment either side: hybrid.segment_geometry), as `c2d2 run` does
+                and half a segment either side: hybrid.segment_geometry) at the window's own
+                scale rule, as `c2d2 run` did until 2026-11-28 (it now takes the whole
+                video's scale)
   learned-local-true-K  the same with the true K in the odometry and the reconstruction
 Where the learned-local error comes from: each segment on its own window as in learned-local,
 with the metric scale taken from the truth (one factor per procedure, the median ratio of true

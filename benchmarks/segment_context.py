@@ -8,7 +8,8 @@ with the truth. Prints the MAE and bias of each context, and of the rule that ta
 context, in the order given, whose support reaches --min-support (the last where none does):
 whether a wider window helps the segments whose own window left most of their wall to the
 lumen's straight continuation. The reconstruction and coverage take their settings from the
-current code (as `c2d2 run` would now), the depth and poses from the eval's work folders.
+current code (as `c2d2 run` would now), the depth, poses and the whole video's metric scale
+from the eval's work folders.
 Writes one JSON line per segment with --out.
 
     python benchmarks/segment_context.py --eval data/eval-heldout --contexts 150 300 600
@@ -38,11 +39,12 @@ def segment_values(work: Path, contexts: list[int], config: RunConfig) -> list[d
     K = Camera(width, height, **json.loads((work / W.INTRINSICS).read_text())["network"]).K
     region = cv2.imread(str(work / W.REGION), cv2.IMREAD_GRAYSCALE) > 127
     poses = np.load(work / W.POSES)
+    scale = json.loads((work / W.RECONSTRUCTION).read_text())["scale_cm_per_unit"]
     frames = round(config.segment_seconds * fps)
     key = pair_key(DEFAULT_PAIR_CM)
     by_context = {c: local_segment_coverage(depth, K, poses, frames, c, region,
                                             config.reconstruction, config.geometric, fps,
-                                            work.name)
+                                            work.name, scale=scale)
                   for c in contexts}
     return [{c: (by_context[c][i].segment.coverage[key], by_context[c][i].support)
              for c in contexts} for i in range(len(poses) // frames)]

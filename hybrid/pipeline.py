@@ -211,10 +211,13 @@ class _Run:
                                                        .typical_radius_cm})
 
     def geometric(self) -> None:
+        # Each segment on its own window (poses drift), at the whole video's metric scale: the
+        # radius rule reads more wall over the whole video than over one window.
+        scale = json.loads(self.path(W.RECONSTRUCTION).read_text())["scale_cm_per_unit"]
         segments = local_segment_coverage(
             self.depth(), self.network_K(), np.load(self.path(W.POSES)), self.segment_frames,
             self.segment_frames // 2, self.region, self.config.reconstruction,
-            self.config.geometric, self.ingested.fps, self.source.name)
+            self.config.geometric, self.ingested.fps, self.source.name, scale=scale)
         if all(s.result is None for s in segments):
             raise InputError(f"no segment could be reconstructed: {segments[0].error}")
         save_maps(segments, self.path(W.MAPS), f"{self.source.name}: wall seen (green) and "

@@ -3,9 +3,10 @@
 Learned poses drift: over a whole video the camera path, and the single lumen fitted around
 it, can be centimetres off, and late segments then look uncovered. Here each segment is
 reconstructed on its own window (the segment and `context` frames either side): its poses
-re-based on the window's first frame, the scale rule, TSDF and lumen fit of
-hybrid.reconstruction, then hybrid.geometric_coverage on the segment's frames. Drift then
-only accumulates within a window.
+re-based on the window's first frame, a given metric scale (`c2d2 run`: the whole video's)
+or the window's own scale rule, TSDF and lumen fit of hybrid.reconstruction, then
+hybrid.geometric_coverage on the segment's frames. Drift then only accumulates within a
+window.
 """
 
 from __future__ import annotations
