@@ -7,9 +7,9 @@ pipeline's: half a segment), and its geometric coverage (Δ = 1-4 cm) and suppor
 with the truth. Prints the MAE and bias of each context, and of the rule that takes the first
 context, in the order given, whose support reaches --min-support (the last where none does):
 whether a wider window helps the segments whose own window left most of their wall to the
-lumen's straight continuation. The reconstruction and coverage take their settings from the
-current code (as `c2d2 run` would now), the depth, poses and the whole video's metric scale
-from the eval's work folders.
+lumen's straight continuation. The windows are built as the geometric stage builds them
+(hybrid.pipeline.work_segments: the work folders' depth, poses and the whole video's metric
+scale), with the current code's settings.
 Writes one JSON line per segment with --out.
 
     python benchmarks/segment_context.py --eval data/eval-heldout --contexts 150 300 600
@@ -20,34 +20,18 @@ import argparse
 import json
 from pathlib import Path
 
-import cv2
 import numpy as np
 
-from hybrid import workdir as W
 from hybrid.coverage import DEFAULT_PAIR_CM, pair_key
-from hybrid.npyio import NpyRows
-from hybrid.pipeline import RunConfig
-from hybrid.segment_geometry import local_segment_coverage
-from hybrid.types import Camera
+from hybrid.pipeline import RunConfig, work_segments
 
 
 def segment_values(work: Path, contexts: list[int], config: RunConfig) -> list[dict]:
     """Per segment of one work folder: {context: (coverage, support)}."""
-    fps = json.loads((work / W.INGEST).read_text())["fps"]
-    depth = NpyRows(work / W.DEPTH)
-    height, width = np.asarray(depth[0]).shape
-    K = Camera(width, height, **json.loads((work / W.INTRINSICS).read_text())["network"]).K
-    region = cv2.imread(str(work / W.REGION), cv2.IMREAD_GRAYSCALE) > 127
-    poses = np.load(work / W.POSES)
-    scale = json.loads((work / W.RECONSTRUCTION).read_text())["scale_cm_per_unit"]
-    frames = round(config.segment_seconds * fps)
     key = pair_key(DEFAULT_PAIR_CM)
-    by_context = {c: local_segment_coverage(depth, K, poses, frames, c, region,
-                                            config.reconstruction, config.geometric, fps,
-                                            work.name, scale=scale)
-                  for c in contexts}
+    by_context = {c: work_segments(work, config, context=c, name=work.name) for c in contexts}
     return [{c: (by_context[c][i].segment.coverage[key], by_context[c][i].support)
-             for c in contexts} for i in range(len(poses) // frames)]
+             for c in contexts} for i in range(len(by_context[contexts[0]]))]
 
 
 def chosen(values: dict, contexts: list[int], min_support: float) -> float | None:

@@ -37,7 +37,7 @@ from hybrid.geometric_coverage import GeometricConfig
 from hybrid.ingest import Ingested, ingest
 from hybrid.npyio import NpyRows, NpyWriter
 from hybrid.reconstruction import ReconstructionConfig, reconstruct
-from hybrid.segment_geometry import local_segment_coverage, save_maps
+from hybrid.segment_geometry import LocalSegment, local_segment_coverage, save_maps
 from hybrid.types import Camera, InputError
 from learned.checkpoint import file_tag
 from learned.coverage_eval import CLASS_EDGES
@@ -211,13 +211,7 @@ class _Run:
                                                        .typical_radius_cm})
 
     def geometric(self) -> None:
-        # Each segment on its own window (poses drift), at the whole video's metric scale: the
-        # radius rule reads more wall over the whole video than over one window.
-        scale = json.loads(self.path(W.RECONSTRUCTION).read_text())["scale_cm_per_unit"]
-        segments = local_segment_coverage(
-            self.depth(), self.network_K(), np.load(self.path(W.POSES)), self.segment_frames,
-            self.segment_frames // 2, self.region, self.config.reconstruction,
-            self.config.geometric, self.ingested.fps, self.source.name, scale=scale)
+        segments = work_segments(self.out, self.config, name=self.source.name)
         if all(s.result is None for s in segments):
             raise InputError(f"no segment could be reconstructed: {segments[0].error}")
         save_maps(segments, self.path(W.MAPS), f"{self.source.name}: wall seen (green) and "
@@ -324,6 +318,27 @@ def video_features(source: Path, work: Path, config: RunConfig, models: Models,
 
 
 GEOMETRIC_STAGES = ("posegraph", "reconstruction", "geometric")
+
+
+def work_segments(out: Path, config: RunConfig, context: int | None = None,
+                  window_scale: bool = False, name: str = "video") -> list[LocalSegment]:
+    """Each segment's geometric coverage from a work folder, as the geometric stage computes
+    it: its depth, network K, image region and smoothed poses, each segment on its own window
+    (poses drift) of `context` frames either side (None: half a segment), at the whole
+    video's metric scale from the reconstruction stage (the radius rule reads more wall over
+    the whole video than over one window), or with window_scale at each window's own rule."""
+    ingested = Ingested.load(out / W.INGEST)
+    depth = NpyRows(out / W.DEPTH)
+    height, width = np.asarray(depth[0]).shape
+    K = Camera(width, height, **json.loads((out / W.INTRINSICS).read_text())["network"]).K
+    region = cv2.imread(str(out / W.REGION), cv2.IMREAD_GRAYSCALE) > 127
+    frames = max(2, round(config.segment_seconds * ingested.fps))
+    scale = None if window_scale else json.loads(
+        (out / W.RECONSTRUCTION).read_text())["scale_cm_per_unit"]
+    return local_segment_coverage(depth, K, np.load(out / W.POSES), frames,
+                                  frames // 2 if context is None else context, region,
+                                  config.reconstruction, config.geometric, ingested.fps, name,
+                                  scale=scale)
 
 
 def run_video(source: Path, out: Path, config: RunConfig = RunConfig(),

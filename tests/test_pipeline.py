@@ -28,11 +28,8 @@ from hybrid.crosscheck import cross_check
 from hybrid.dataset import Procedure
 from hybrid.evaluate import summarise
 from hybrid.ingest import Ingested
-from hybrid.npyio import NpyRows
-from hybrid.pipeline import Models, RunConfig, run_video, video_features
-from hybrid.segment_geometry import local_segment_coverage
+from hybrid.pipeline import Models, RunConfig, run_video, video_features, work_segments
 from hybrid.sim.simulate import SimConfig, simulate_procedure, with_overrides
-from hybrid.types import Camera
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 
@@ -224,27 +221,13 @@ def test_coverage_csv_has_the_documented_columns(pipeline_run):
 
 def test_segments_are_measured_at_the_whole_video_scale(pipeline_run):
     """Each segment's window is rebuilt at the scale of the whole video's reconstruction
-    (reconstruction.json), not at its own window's scale rule: recomputing the windows at that
-    scale gives geometric.json's values, and at the windows' own rule they differ."""
+    (reconstruction.json), not at its own window's radius rule: the geometric stage's values
+    are those, and at the windows' own rule they differ."""
     out, _ = pipeline_run
-    config = RunConfig()
-    fps = json.loads((out / W.INGEST).read_text())["fps"]
-    depth = NpyRows(out / W.DEPTH)
-    height, width = np.asarray(depth[0]).shape
-    K = Camera(width, height, **json.loads((out / W.INTRINSICS).read_text())["network"]).K
-    region = cv2.imread(str(out / W.REGION), cv2.IMREAD_GRAYSCALE) > 127
-    poses = np.load(out / W.POSES)
-    frames = round(config.segment_seconds * fps)
-    scale = json.loads((out / W.RECONSTRUCTION).read_text())["scale_cm_per_unit"]
     saved = [s["coverage"] for s in json.loads((out / W.GEOMETRIC).read_text())["segments"]]
-
-    def values(at: float | None) -> list[dict]:
-        return [s.segment.coverage for s in local_segment_coverage(
-            depth, K, poses, frames, frames // 2, region, config.reconstruction,
-            config.geometric, fps, "video", scale=at)]
-
-    assert values(scale) == saved
-    assert values(None) != saved
+    assert [s.segment.coverage for s in work_segments(out, RunConfig())] == saved
+    windows = work_segments(out, RunConfig(), window_scale=True)
+    assert [s.segment.coverage for s in windows] != saved
 
 
 def test_rerun_skips_every_stage(pipeline_run, procedure):
