@@ -16,7 +16,6 @@ import json
 from dataclasses import replace
 from pathlib import Path
 
-import cv2
 import numpy as np
 
 from hybrid import workdir as W
@@ -24,10 +23,9 @@ from hybrid.coverage import DEFAULT_PAIR_CM, pair_key
 from hybrid.geometric_coverage import geometric_coverage
 from hybrid.lumen_fit import FittedLumen
 from hybrid.npyio import NpyRows
-from hybrid.pipeline import RunConfig
+from hybrid.pipeline import RunConfig, read_network_K, read_region, segment_frame_count
 from hybrid.reconstruction import ScaledDepth, reconstruct
 from hybrid.segment_geometry import _Window
-from hybrid.types import Camera
 
 
 def main() -> None:
@@ -40,11 +38,10 @@ def main() -> None:
     config = RunConfig()
     ingested = json.loads((args.work / W.INGEST).read_text())
     depth = NpyRows(args.work / W.DEPTH)
-    height, width = np.asarray(depth[0]).shape
-    K = Camera(width, height, **json.loads((args.work / W.INTRINSICS).read_text())["network"]).K
-    region = cv2.imread(str(args.work / W.REGION), cv2.IMREAD_GRAYSCALE) > 127
+    K = read_network_K(args.work, *np.asarray(depth[0]).shape)
+    region = read_region(args.work)
     poses = np.load(args.work / W.POSES)
-    frames = round(config.segment_seconds * ingested["fps"])
+    frames = segment_frame_count(config, ingested["fps"])
     start, stop = args.segment * frames, (args.segment + 1) * frames
     first, last = max(0, start - frames // 2), min(len(poses), stop + frames // 2)
     geometric = replace(config.geometric, segment_frames=frames)

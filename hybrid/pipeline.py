@@ -111,6 +111,22 @@ class Models:
                    {"depth": file_tag(depth), "coverage": file_tag(coverage)})
 
 
+def read_region(out: Path) -> np.ndarray:
+    """(H, W) bool: the image region a work folder's ingest stage wrote."""
+    return cv2.imread(str(out / W.REGION), cv2.IMREAD_GRAYSCALE) > 127
+
+
+def read_network_K(out: Path, height: int, width: int) -> np.ndarray:
+    """The network's K from a work folder's intrinsics.json, in pixels of its depth maps."""
+    data = json.loads((out / W.INTRINSICS).read_text())
+    return Camera(width, height, **data["network"]).K
+
+
+def segment_frame_count(config: RunConfig, fps: float) -> int:
+    """Frames per segment at the video's rate (at least 2)."""
+    return max(2, round(config.segment_seconds * fps))
+
+
 class _Run:
     """One video's work directory and what its stages share."""
 
@@ -129,7 +145,7 @@ class _Run:
 
     @property
     def region(self) -> np.ndarray:
-        return cv2.imread(str(self.path(W.REGION)), cv2.IMREAD_GRAYSCALE) > 127
+        return read_region(self.out)
 
     def frames(self) -> NpyRows:
         return NpyRows(self.path(W.FRAMES))
@@ -144,7 +160,7 @@ class _Run:
 
     @property
     def segment_frames(self) -> int:
-        return max(2, round(self.config.segment_seconds * self.ingested.fps))
+        return segment_frame_count(self.config, self.ingested.fps)
 
     @property
     def travel_gap(self) -> int:
@@ -292,8 +308,7 @@ class _Run:
         write_report(self.out, table, self.ingested)
 
     def network_K(self) -> np.ndarray:
-        data = json.loads(self.path(W.INTRINSICS).read_text())
-        return Camera(self.size[1], self.size[0], **data["network"]).K
+        return read_network_K(self.out, *self.size)
 
 
 def _percentiles(values: np.ndarray, q: tuple[float, ...]) -> list[float] | None:
@@ -329,14 +344,12 @@ def work_segments(out: Path, config: RunConfig, context: int | None = None,
     the whole video than over one window), or with window_scale at each window's own rule."""
     ingested = Ingested.load(out / W.INGEST)
     depth = NpyRows(out / W.DEPTH)
-    height, width = np.asarray(depth[0]).shape
-    K = Camera(width, height, **json.loads((out / W.INTRINSICS).read_text())["network"]).K
-    region = cv2.imread(str(out / W.REGION), cv2.IMREAD_GRAYSCALE) > 127
-    frames = max(2, round(config.segment_seconds * ingested.fps))
+    frames = segment_frame_count(config, ingested.fps)
     scale = None if window_scale else json.loads(
         (out / W.RECONSTRUCTION).read_text())["scale_cm_per_unit"]
-    return local_segment_coverage(depth, K, np.load(out / W.POSES), frames,
-                                  frames // 2 if context is None else context, region,
+    return local_segment_coverage(depth, read_network_K(out, *np.asarray(depth[0]).shape),
+                                  np.load(out / W.POSES), frames,
+                                  frames // 2 if context is None else context, read_region(out),
                                   config.reconstruction, config.geometric, ingested.fps, name,
                                   scale=scale)
 
