@@ -242,3 +242,31 @@ def test_simulate_a_colon_too_short_to_withdraw(tmp_path, length):
     result = runner.invoke(app, ["simulate", "--out", str(tmp_path), "--length-cm", length])
     assert result.exit_code == 2 and "colon length must exceed" in result.stderr
     assert not any(tmp_path.iterdir())  # nothing half-written
+
+
+def test_demo_prints_the_truth_and_both_branches(tmp_path):
+    """`c2d2 demo`, the README's main command, on its shortest video: each printed row holds
+    the simulated procedure's true coverage and the run's learned and geometric values, the
+    report is written, and a second call resumes the same work without changing a figure."""
+    from hybrid.dataset import Procedure
+
+    args = ["demo", "--out", str(tmp_path), "--max-frames", "300", "--length-cm", "20"]
+    first = runner.invoke(app, args)
+    assert first.exit_code == 0, first.output
+    truth = Procedure.open(tmp_path / "proc_0000").coverage
+    key = pair_key(truth.default_pair)
+    table = json.loads((tmp_path / "run" / "coverage.json").read_text())["segments"]
+    lines = first.stdout.splitlines()
+    header = next(i for i, line in enumerate(lines) if line.startswith("segment"))
+    rows = [line.split() for line in lines[header + 1:header + 1 + len(table)]]
+    assert len(rows) == len(truth.segments) == 1
+    for cells, true, row in zip(rows, truth.segments, table, strict=True):
+        assert float(cells[2]) == pytest.approx(true.coverage[key], abs=5e-4)
+        for column, name in ((3, "learned"), (4, "geometric")):
+            assert float(cells[column]) == pytest.approx(row[name], abs=5e-4)
+    assert (tmp_path / "run" / "report.html").stat().st_size > 0
+
+    again = runner.invoke(app, args)
+    assert again.exit_code == 0, again.output
+    assert "depth: done before, skipped" in again.stdout
+    assert again.stdout.splitlines()[-len(lines) + header:] == lines[header:]
