@@ -1,8 +1,9 @@
 """report.html: a self-contained page (figures embedded as PNG data) for one video.
 
-Coverage over time for both branches with deficient segments highlighted, the learned against
-geometric scatter, sample frames with their depth, the unrolled map of seen and missed wall, a
-rendered image of the reconstruction, and the segment table.
+Coverage over time for both branches (the geometric one faded by its support) and combined, with
+deficient segments highlighted, the learned against geometric scatter, sample frames with their
+depth, the unrolled map of seen and missed wall, a rendered image of the reconstruction, and
+the segment table.
 """
 
 from __future__ import annotations
@@ -39,18 +40,26 @@ def coverage_over_time(table: CrossCheck) -> str:
             ax.axvspan(row.start_s, row.end_s, color="#d62728", alpha=0.15, lw=0)
         if not row.assessable:
             ax.axvspan(row.start_s, row.end_s, color="0.6", alpha=0.3, lw=0, hatch="//")
-    for key, colour in (("learned", "#1f77b4"), ("geometric", "#ff7f0e")):
-        xs, ys = [], []
+    lines = (("learned", "#1f77b4", 2.5, "learned"),
+             ("geometric", "#ff7f0e", 2.5, "geometric (faded by its support)"),
+             ("coverage", "black", 1.2, "combined (the deficient rule's)"))
+    labelled = set()
+    for key, colour, width, label in lines:
         for row in table.rows:
             value = getattr(row, key)
-            xs += [row.start_s, row.end_s, np.nan]
-            ys += [np.nan if value is None else value] * 2 + [np.nan]
-        ax.plot(xs, ys, color=colour, lw=2.5, label=key)
+            if value is None:
+                continue
+            support = row.geometric_support if key == "geometric" else None
+            ax.plot([row.start_s, row.end_s], [value, value], color=colour, lw=width,
+                    alpha=1.0 if support is None else 0.2 + 0.8 * support,
+                    label=None if key in labelled else label)
+            labelled.add(key)
     for edge in CLASS_EDGES:
         ax.axhline(edge, color="0.7", lw=0.8, ls="--")
     ax.set(xlabel="time (s)", ylabel="segment coverage", ylim=(0, 1),
            title="coverage over time (red: deficient, hatched: not assessable)")
-    ax.legend(loc="lower right")
+    for handle in ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1), fontsize=8).legend_handles:
+        handle.set_alpha(1.0)  # the key, not the first segment's opacity
     fig.tight_layout()
     return _png(fig)
 

@@ -682,6 +682,28 @@ def test_cross_check_without_the_geometric_branch(tmp_path):
     assert [r.deficient for r in table.rows] == [False, True, False, False, False]
 
 
+def test_coverage_over_time_draws_both_branches_and_the_combined_value(tmp_path, monkeypatch):
+    """The report's first figure: one line per segment and value given; the geometric line's
+    opacity is 0.2 + 0.8 x its support (full where the support is unknown)."""
+    from hybrid import report
+
+    figures = []
+    monkeypatch.setattr(report, "_png", figures.append)
+    ingested = hand_made_work_dir(tmp_path / "work", [0.85, 0.55, 0.25, 0.10, None])
+    table = cross_check(tmp_path / "work", ingested, RunConfig())
+    report.coverage_over_time(table)
+    drawn = {}
+    for line in figures[0].axes[0].lines:
+        x, y = line.get_data()
+        if len(x) == 2 and x[0] != x[1] and y[0] == y[1] and tuple(x) != (0, 1):
+            drawn.setdefault(line.get_color(), []).append((x[0], y[0], line.get_alpha()))
+    rows = table.rows
+    np.testing.assert_allclose(drawn["#1f77b4"], [(r.start_s, r.learned, 1.0) for r in rows])
+    np.testing.assert_allclose(drawn["black"], [(r.start_s, r.coverage, 1.0) for r in rows])
+    np.testing.assert_allclose(drawn["#ff7f0e"], [(0.0, 0.85, 0.6), (0.4, 0.55, 1.0),
+                                                  (0.8, 0.25, 1.0), (1.2, 0.10, 0.2)])
+
+
 def test_eval_summary_by_hand():
     def row(procedure, truth, learned, geometric):
         combined = learned if geometric is None else 0.5 * (learned + geometric)
