@@ -22,6 +22,9 @@ to learned depth, applied to the learned depth and translations alike), and
                 depth's unit, which the scale turns into cm)
   local-K       learned K, true depth and poses
   local-poses   learned (smoothed) poses, true depth and K
+  local-poses-true-odometry  the same poses with the odometry run on the true depth and K
+                (the network's relative poses, put in cm, as its start): how much of the
+                poses' cost the odometry could win back if the depth it reads were right
 Prints MAE, bias and 3-class accuracy per mode, the lumen fit errors, and the frames/s of the
 pose graph + TSDF + coverage, then the MAE by style; writes a JSON (benchmarks/eval_spread.py
 splits it by the segment's place in its video) and a scatter plot.
@@ -57,7 +60,9 @@ LOCAL_SWAPS = {"local-oracle": (), "local-metric": ("depth", "K", "poses"),
                "local-depth": ("depth",), "local-K": ("K",), "local-poses": ("poses",)}
 """Diagnostic modes: which inputs are the learned ones (the rest true), scale from the truth."""
 BASIC_MODES = ("oracle", "oracle-s0.7", "oracle-s1.3", "oracle-rule", "learned", "learned-local")
-MODES = (*BASIC_MODES, "learned-local-true-K", *LOCAL_SWAPS)
+TRUE_ODOMETRY = "local-poses-true-odometry"
+MODES = (*BASIC_MODES, "learned-local-true-K", *LOCAL_SWAPS, TRUE_ODOMETRY)
+LOCAL_MODES = ("learned-local", "learned-local-true-K", *LOCAL_SWAPS, TRUE_ODOMETRY)
 
 
 def lumen_errors(fitted_points: np.ndarray, fitted_radius: np.ndarray, proc: Procedure,
@@ -107,14 +112,23 @@ def learned_inputs(proc: Procedure, model, graph: PoseGraphConfig,
     tic = time.time()
     frames = [seq.frame(i) for i in range(seq.num_frames)] if odometry.enabled else []
 
-    def smoothed(K: np.ndarray) -> tuple[np.ndarray, dict | None]:
+    def smoothed(K: np.ndarray, depth: list[np.ndarray] | None = None, to_cm: float = 1.0
+                 ) -> tuple[np.ndarray, dict | None]:
+        """The network's relative poses (translations times to_cm), refined by odometry on
+        `depth` (the network's if None) and K, then smoothed."""
+        depth = out["depth"] if depth is None else depth
         relative, kept = inferred.relative, None
+        if to_cm != 1.0:
+            relative = {g: rel.copy() for g, rel in relative.items()}
+            for rel in relative.values():
+                rel[:, :3, 3] *= to_cm
         if odometry.enabled:
-            refined = refine_relative_poses(relative, out["depth"], frames, K, seq.region,
+            refined = refine_relative_poses(relative, depth, frames, K, seq.region,
                                             odometry, name=str(proc.path))
             relative, kept = refined.relative, refined.kept
         return smooth_trajectory(relative, graph, name=str(proc.path)).poses, kept
 
+    out["smoothed"] = smoothed
     out["poses"], kept = smoothed(out["K"])
     out["graph_s"] = time.time() - tic
     if kept is not None:
@@ -134,6 +148,9 @@ def local_row(mode: str, proc: Procedure, learned: dict, depth_true: list[np.nda
         depth, K, poses, scale = learned["depth"], learned["K"], learned["poses"], None
     elif mode == "learned-local-true-K":
         depth, K, poses, scale = learned["depth"], proc.camera.K, learned["poses_true_K"], None
+    elif mode == TRUE_ODOMETRY:  # poses already in cm
+        poses, _ = learned["smoothed"](proc.camera.K, depth_true, learned["to_cm"])
+        depth, K, scale = depth_true, proc.camera.K, 1.0
     else:
         swap, to_cm = LOCAL_SWAPS[mode], learned["to_cm"]
         depth = learned["depth"] if "depth" in swap else depth_true
@@ -190,16 +207,15 @@ def run_procedure(proc: Procedure, model, graph: PoseGraphConfig, odometry: Odom
     truth = proc.coverage.segment_labels()
     depth_true = [proc.depth(i) for i in range(proc.num_frames)]
     out = {"truth": truth.tolist()}
-    whole_video = [m for m in modes
-                   if m not in ("learned-local", "learned-local-true-K", *LOCAL_SWAPS)]
+    whole_video = [m for m in modes if m not in LOCAL_MODES]
     rgb = [proc.rgb(i) for i in range(proc.num_frames)] if whole_video else []
     learned = {}
-    if any(m.startswith("learned") or m in LOCAL_SWAPS for m in modes):
+    if any(m.startswith("learned") or m in (*LOCAL_SWAPS, TRUE_ODOMETRY) for m in modes):
         learned = learned_inputs(proc, model, graph, odometry,
                                  true_K_too="learned-local-true-K" in modes)
         if "odometry_kept" in learned:  # pairs the odometry could not align, per gap
             out["odometry_kept"] = learned["odometry_kept"]
-        if any(m in LOCAL_SWAPS for m in modes):
+        if any(m in (*LOCAL_SWAPS, TRUE_ODOMETRY) for m in modes):
             learned["to_cm"] = depth_ratio(learned["depth"], depth_true)
     for mode in modes:
         tic = time.time()
