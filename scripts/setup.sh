@@ -16,6 +16,20 @@ fi
 
 PY=${PYTHON:-python3}
 if [ ! -x .venv/bin/python ]; then
+  if ! $PY -c 'import sys; sys.exit(sys.version_info < (3, 11))' 2>/dev/null; then
+    echo "[setup] C2D2 needs Python 3.11 or newer as $PY (set PYTHON=/path/to/python3.11+)" >&2
+    exit 1
+  fi
+  # Debian's python3 creates virtual environments only with python3-venv (ensurepip).
+  if ! $PY -c 'import ensurepip, venv' 2>/dev/null; then
+    if [ "$(id -u)" = "0" ] && command -v apt-get >/dev/null; then
+      echo "[setup] installing Debian package python3-venv (needed to create .venv)"
+      apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq python3-venv >/dev/null
+    else
+      echo "[setup] $PY cannot create a virtual environment. On Debian: sudo apt-get install -y python3-venv" >&2
+      exit 1
+    fi
+  fi
   echo "[setup] creating .venv with $($PY --version)"
   $PY -m venv .venv
 fi
