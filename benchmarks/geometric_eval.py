@@ -299,6 +299,9 @@ def main() -> None:
     parser.add_argument("--odometry-iterations", type=int, nargs="+",
                         default=list(OdometryConfig().iterations),
                         help="OdometryConfig.iterations: per pyramid level, coarsest first")
+    parser.add_argument("--odometry-depth-max", type=float, default=OdometryConfig().depth_max,
+                        help="OdometryConfig.depth_max: deeper pixels (in median depths) are "
+                             "left out of the alignment")
     args = parser.parse_args()
     modes = tuple(args.modes)
     geometric = GeometricConfig(occlusion_tolerance=args.occlusion_tolerance)
@@ -310,7 +313,8 @@ def main() -> None:
                             translation_sigma=args.translation_sigma)
     config = ReconstructionConfig(voxel_cm=args.voxel_cm)
     odometry = OdometryConfig(enabled=not args.no_odometry,
-                              iterations=tuple(args.odometry_iterations))
+                              iterations=tuple(args.odometry_iterations),
+                              depth_max=args.odometry_depth_max)
     paths = {input_name(p): p for p in expand_inputs(args.data)}
     results = {name: run_procedure(Procedure.open(p), model, graph, odometry, config, geometric,
                                    modes)

@@ -50,11 +50,13 @@ class OdometryConfig:
     as a fraction; not tuned)."""
     intensity_huber: float = 0.1
     """Huber threshold of the intensity residual (intensity in [0, 1]; Open3D's default)."""
+    depth_max: float = float("inf")
+    """Pixels deeper than this are left out of the alignment (none by default)."""
 
     def __post_init__(self) -> None:
-        if min(self.depth_outlier, self.depth_huber, self.intensity_huber) <= 0:
-            raise InputError("odometry depth_outlier, depth_huber and intensity_huber must be "
-                             "positive")
+        if min(self.depth_outlier, self.depth_huber, self.intensity_huber, self.depth_max) <= 0:
+            raise InputError("odometry depth_outlier, depth_huber, intensity_huber and "
+                             "depth_max must be positive")
         if not self.iterations or min(self.iterations) < 1:
             raise InputError(f"odometry iterations must be one positive count per pyramid "
                              f"level, got {self.iterations}")
@@ -122,8 +124,8 @@ def refine_relative_poses(relative: dict[int, np.ndarray], depth: Sequence[np.nd
         try:
             result = _odometry.rgbd_odometry_multi_scale(
                 source, target, intrinsics, o3d.core.Tensor(start), depth_scale=1.0,
-                depth_max=float("inf"), criteria_list=criteria, method=_odometry.Method.Hybrid,
-                params=params)
+                depth_max=config.depth_max * scale, criteria_list=criteria,
+                method=_odometry.Method.Hybrid, params=params)
         except RuntimeError as err:  # Open3D's two ways of saying "cannot solve"
             if not any(m in str(err) for m in ("inlier_count", "tracking failed")):
                 raise

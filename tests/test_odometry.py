@@ -9,7 +9,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from fusion import odometry
-from fusion.odometry import OdometryConfig, refine_relative_poses
+from fusion.odometry import OdometryConfig, median_depth, refine_relative_poses
 from hybrid.dataset import Procedure
 from hybrid.types import InputError
 
@@ -106,6 +106,25 @@ def test_odometry_keeps_the_estimate_of_a_pair_it_cannot_align(procedure):
     assert np.isnan(refined.fitness[1]).all()
 
 
+def test_depth_max_leaves_deeper_pixels_out(procedure):
+    """depth_max counts in median depths: above every pixel it changes nothing; below every
+    pixel no pair has points left, and each keeps its start."""
+    depth, rgb, K, poses = (x[:21] for x in procedure)
+    start = {1: truth_at(poses, 1)}
+    valid = np.concatenate([d[d > 0] for d in depth])
+    median = median_depth(depth, None, "test")  # the unit of the odometry's thresholds
+    deepest, shallowest = valid.max(), valid.min()
+    everything = refine_relative_poses(start, depth, rgb, K)
+    above_all = OdometryConfig(depth_max=1.01 * deepest / median)
+    np.testing.assert_array_equal(
+        refine_relative_poses(start, depth, rgb, K, config=above_all).relative[1],
+        everything.relative[1])
+    nothing = refine_relative_poses(start, depth, rgb, K,
+                                    config=OdometryConfig(depth_max=0.99 * shallowest / median))
+    assert everything.kept[1] == 0 and nothing.kept[1] == len(start[1])
+    np.testing.assert_array_equal(nothing.relative[1], start[1])
+
+
 def test_bad_input_is_refused(procedure):
     depth, rgb, K, poses = procedure
     rel = {1: truth_at(poses, 1)}
@@ -129,6 +148,8 @@ def test_bad_input_is_refused(procedure):
         refine_relative_poses(rel, depth, rgb, K, np.ones((4, 4), bool))
     with pytest.raises(InputError, match="positive"):
         OdometryConfig(depth_huber=0.0)
+    with pytest.raises(InputError, match="positive"):
+        OdometryConfig(depth_max=0.0)
     with pytest.raises(InputError, match="per pyramid level"):
         OdometryConfig(iterations=())
     with pytest.raises(InputError, match="threads"):
