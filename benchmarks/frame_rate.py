@@ -26,6 +26,10 @@ def subsample(proc: Procedure, every: int, out: Path) -> Path:
     """Write proc's every `every`-th frame as a procedure under out (skipped if there)."""
     final = out / proc.path.name
     if final.is_dir():
+        made = json.loads((final / "meta.json").read_text()).get("every_kth_frame")
+        if made != every:
+            raise SystemExit(f"{final} holds every {made}th frame, not every {every}th: "
+                             f"choose another --out")
         return final
     segment_frames = proc.coverage.segment_frames
     if segment_frames % every:
@@ -36,19 +40,29 @@ def subsample(proc: Procedure, every: int, out: Path) -> Path:
     for kind in ("rgb", "depth"):
         (work / kind).mkdir(parents=True)
         for new, old in enumerate(range(0, proc.num_frames, every)):
-            os.link(proc.path / kind / frame_name(old), work / kind / frame_name(new))
+            _link(proc.path / kind / frame_name(old), work / kind / frame_name(new))
     for name in ("colon.ply", "lumen.npy"):
-        os.link(proc.path / name, work / name)
+        _link(proc.path / name, work / name)
     camera = replace(proc.camera, fps=proc.camera.fps / every)
     camera.save(work / "camera.json")
     poses = proc.poses[::every]
     np.save(work / "poses.npy", poses)
-    meta = json.loads((proc.path / "meta.json").read_text()) | {"every_kth_frame": every}
+    # the source's meta, with the copy's frame count; its configs stay the source's
+    meta = json.loads((proc.path / "meta.json").read_text()) | {
+        "every_kth_frame": every, "num_frames": len(poses)}
     (work / "meta.json").write_text(json.dumps(meta, indent=1))
     compute_coverage(proc.mesh(), Lumen(proc.lumen), poses, camera,
                      segment_frames // every).save(work / "coverage.json")
     work.rename(final)
     return final
+
+
+def _link(source: Path, target: Path) -> None:
+    """A hard link where the file system allows it, else a copy."""
+    try:
+        os.link(source, target)
+    except OSError:
+        shutil.copy2(source, target)
 
 
 def main() -> None:

@@ -99,11 +99,13 @@ def depth_ratio(learned: list[np.ndarray], true: list[np.ndarray], stride: int =
     return float(np.median(np.concatenate(ratios)))
 
 
-def learned_inputs(proc: Procedure, model, graph: PoseGraphConfig,
-                   odometry: OdometryConfig, true_K_too: bool = False) -> dict:
-    """The depth model's depth and K, the smoothed poses (odometry first, unless off), and the
-    seconds of the networks and of the odometry + pose graph; with true_K_too also the poses
-    smoothed after an odometry with the true K ('poses_true_K')."""
+def learned_inputs(proc: Procedure, model, graph: PoseGraphConfig, odometry: OdometryConfig,
+                   true_K_too: bool = False, depth_max: float = float("inf")) -> dict:
+    """The depth model's depth and K, the smoothed poses (odometry first, unless off, leaving
+    out pixels deeper than depth_max median depths), and the seconds of the networks and of
+    the odometry + pose graph; with true_K_too also the poses smoothed after an odometry with
+    the true K ('poses_true_K'); and 'smoothed', the function that makes the poses, for
+    other depth and K."""
     tic = time.time()
     seq = open_sequence(proc.path, (model.config.height, model.config.width))
     inferred = infer_sequence(model, seq, tuple(sorted({1, *graph.skips})))
@@ -124,7 +126,8 @@ def learned_inputs(proc: Procedure, model, graph: PoseGraphConfig,
                 rel[:, :3, 3] *= to_cm
         if odometry.enabled:
             refined = refine_relative_poses(relative, depth, frames, K, seq.region,
-                                            odometry, name=str(proc.path))
+                                            odometry, name=str(proc.path),
+                                            depth_max=depth_max)
             relative, kept = refined.relative, refined.kept
         return smooth_trajectory(relative, graph, name=str(proc.path)).poses, kept
 
@@ -203,7 +206,7 @@ def whole_video_row(mode: str, proc: Procedure, learned: dict, depth_true: list[
 
 def run_procedure(proc: Procedure, model, graph: PoseGraphConfig, odometry: OdometryConfig,
                   config: ReconstructionConfig, geometric: GeometricConfig,
-                  modes: tuple[str, ...] = MODES) -> dict:
+                  modes: tuple[str, ...] = MODES, depth_max: float = float("inf")) -> dict:
     truth = proc.coverage.segment_labels()
     depth_true = [proc.depth(i) for i in range(proc.num_frames)]
     out = {"truth": truth.tolist()}
@@ -212,7 +215,7 @@ def run_procedure(proc: Procedure, model, graph: PoseGraphConfig, odometry: Odom
     learned = {}
     if any(m.startswith("learned") or m in (*LOCAL_SWAPS, TRUE_ODOMETRY) for m in modes):
         learned = learned_inputs(proc, model, graph, odometry,
-                                 true_K_too="learned-local-true-K" in modes)
+                                 true_K_too="learned-local-true-K" in modes, depth_max=depth_max)
         if "odometry_kept" in learned:  # pairs the odometry could not align, per gap
             out["odometry_kept"] = learned["odometry_kept"]
         if any(m in (*LOCAL_SWAPS, TRUE_ODOMETRY) for m in modes):
@@ -224,6 +227,7 @@ def run_procedure(proc: Procedure, model, graph: PoseGraphConfig, odometry: Odom
         else:
             row = local_row(mode, proc, learned, depth_true, config, geometric)
         # seconds: the geometry, with the odometry + pose graph where all poses are learned
+        # (local-poses-true-odometry runs its own inside local_row, so its seconds hold them)
         graph_s = {"learned": learned.get("graph_s"), "learned-local": learned.get("graph_s"),
                    "local-metric": learned.get("graph_s"),
                    "learned-local-true-K": learned.get("graph_s_true_K")}.get(mode) or 0.0
@@ -299,9 +303,9 @@ def main() -> None:
     parser.add_argument("--odometry-iterations", type=int, nargs="+",
                         default=list(OdometryConfig().iterations),
                         help="OdometryConfig.iterations: per pyramid level, coarsest first")
-    parser.add_argument("--odometry-depth-max", type=float, default=OdometryConfig().depth_max,
-                        help="OdometryConfig.depth_max: deeper pixels (in median depths) are "
-                             "left out of the alignment")
+    parser.add_argument("--odometry-depth-max", type=float, default=float("inf"),
+                        help="refine_relative_poses' depth_max: deeper pixels (in median "
+                             "depths) are left out of the alignment")
     args = parser.parse_args()
     modes = tuple(args.modes)
     geometric = GeometricConfig(occlusion_tolerance=args.occlusion_tolerance)
@@ -313,11 +317,12 @@ def main() -> None:
                             translation_sigma=args.translation_sigma)
     config = ReconstructionConfig(voxel_cm=args.voxel_cm)
     odometry = OdometryConfig(enabled=not args.no_odometry,
-                              iterations=tuple(args.odometry_iterations),
-                              depth_max=args.odometry_depth_max)
+                              iterations=tuple(args.odometry_iterations))
+    if TRUE_ODOMETRY in modes and not odometry.enabled:
+        parser.error(f"{TRUE_ODOMETRY} runs the odometry: drop --no-odometry")
     paths = {input_name(p): p for p in expand_inputs(args.data)}
     results = {name: run_procedure(Procedure.open(p), model, graph, odometry, config, geometric,
-                                   modes)
+                                   modes, args.odometry_depth_max)
                for name, p in paths.items()}
     table = summary(results, modes)
     args.out.mkdir(parents=True, exist_ok=True)

@@ -50,13 +50,11 @@ class OdometryConfig:
     as a fraction; not tuned)."""
     intensity_huber: float = 0.1
     """Huber threshold of the intensity residual (intensity in [0, 1]; Open3D's default)."""
-    depth_max: float = float("inf")
-    """Pixels deeper than this are left out of the alignment (none by default)."""
 
     def __post_init__(self) -> None:
-        if min(self.depth_outlier, self.depth_huber, self.intensity_huber, self.depth_max) <= 0:
-            raise InputError("odometry depth_outlier, depth_huber, intensity_huber and "
-                             "depth_max must be positive")
+        if min(self.depth_outlier, self.depth_huber, self.intensity_huber) <= 0:
+            raise InputError("odometry depth_outlier, depth_huber and intensity_huber must be "
+                             "positive")
         if not self.iterations or min(self.iterations) < 1:
             raise InputError(f"odometry iterations must be one positive count per pyramid "
                              f"level, got {self.iterations}")
@@ -79,13 +77,15 @@ def refine_relative_poses(relative: dict[int, np.ndarray], depth: Sequence[np.nd
                           rgb: Sequence[np.ndarray], K: np.ndarray,
                           region: np.ndarray | None = None,
                           config: OdometryConfig = OdometryConfig(), name: str = "video",
-                          progress: bool = False, threads: int | None = None) -> RefinedPoses:
+                          progress: bool = False, threads: int | None = None,
+                          depth_max: float = float("inf")) -> RefinedPoses:
     """Refine every relative pose of `relative` by hybrid (colour + depth) RGB-D odometry.
 
     depth: (H, W) maps, 0 where unknown; rgb: (H, W, 3) uint8 frames of the same size; K at
     that size. Frames are read once, in order, a block at a time; the pairs of a block are
     aligned in `threads` threads (None: one per core) while the next block is read. The result
-    does not depend on the threads.
+    does not depend on the threads. depth_max, in median depths: both frames' deeper pixels
+    are left out (a diagnostic of benchmarks/geometric_eval.py; `c2d2 run` keeps every pixel).
     """
     if not relative:
         raise InputError(f"{name}: no relative poses to refine")
@@ -105,6 +105,8 @@ def refine_relative_poses(relative: dict[int, np.ndarray], depth: Sequence[np.nd
     if region is not None and (np.shape(region) != size or np.asarray(region).dtype != bool):
         raise InputError(f"{name}: the region must be a boolean {size} mask like the depth, got "
                          f"{np.asarray(region).dtype} {np.shape(region)}")
+    if not depth_max > 0:
+        raise InputError(f"{name}: the odometry's depth_max must be positive, got {depth_max}")
     if region is not None and region.all():  # nothing outside: no masking, no copying
         region = None
     scale = median_depth(depth, region, name)
@@ -124,7 +126,7 @@ def refine_relative_poses(relative: dict[int, np.ndarray], depth: Sequence[np.nd
         try:
             result = _odometry.rgbd_odometry_multi_scale(
                 source, target, intrinsics, o3d.core.Tensor(start), depth_scale=1.0,
-                depth_max=config.depth_max * scale, criteria_list=criteria,
+                depth_max=depth_max * scale, criteria_list=criteria,
                 method=_odometry.Method.Hybrid, params=params)
         except RuntimeError as err:  # Open3D's two ways of saying "cannot solve"
             if not any(m in str(err) for m in ("inlier_count", "tracking failed")):

@@ -34,6 +34,8 @@ def _img(data: str, alt: str) -> str:
 
 
 def coverage_over_time(table: CrossCheck) -> str:
+    """Each segment's learned, geometric (opacity 0.2 + 0.8 x its support) and combined
+    coverage as a line over its time range; deficient segments shaded, unassessable hatched."""
     fig, ax = plt.subplots(figsize=(10, 3.2))
     for row in table.rows:
         if row.deficient:
@@ -42,7 +44,7 @@ def coverage_over_time(table: CrossCheck) -> str:
             ax.axvspan(row.start_s, row.end_s, color="0.6", alpha=0.3, lw=0, hatch="//")
     lines = (("learned", "#1f77b4", 2.5, "learned"),
              ("geometric", "#ff7f0e", 2.5, "geometric (faded by its support)"),
-             ("coverage", "black", 1.2, "combined (the deficient rule's)"))
+             ("coverage", "black", 1.2, "combined (read by the deficient rule)"))
     labelled = set()
     for key, colour, width, label in lines:
         for row in table.rows:
@@ -58,8 +60,10 @@ def coverage_over_time(table: CrossCheck) -> str:
         ax.axhline(edge, color="0.7", lw=0.8, ls="--")
     ax.set(xlabel="time (s)", ylabel="segment coverage", ylim=(0, 1),
            title="coverage over time (red: deficient, hatched: not assessable)")
-    for handle in ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1), fontsize=8).legend_handles:
-        handle.set_alpha(1.0)  # the key, not the first segment's opacity
+    if labelled:
+        legend = ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1), fontsize=8)
+        for handle in legend.legend_handles:
+            handle.set_alpha(1.0)  # the key, not the first segment's opacity
     fig.tight_layout()
     return _png(fig)
 

@@ -15,18 +15,24 @@ if ! ldconfig -p 2>/dev/null | grep -q 'libusb-1.0.so.0'; then
 fi
 
 PY=${PYTHON:-python3}
+if [ -x .venv/bin/python ] && ! .venv/bin/python -m pip --version >/dev/null 2>&1; then
+  echo "[setup] .venv has no pip (made without python3-venv?): creating it again"
+  rm -rf .venv
+fi
 if [ ! -x .venv/bin/python ]; then
   if ! $PY -c 'import sys; sys.exit(sys.version_info < (3, 11))' 2>/dev/null; then
     echo "[setup] C2D2 needs Python 3.11 or newer as $PY (set PYTHON=/path/to/python3.11+)" >&2
     exit 1
   fi
-  # Debian's python3 creates virtual environments only with python3-venv (ensurepip).
+  # Debian's pythons create virtual environments only with their -venv package (ensurepip).
   if ! $PY -c 'import ensurepip, venv' 2>/dev/null; then
+    pkg="python$($PY -c 'import sys; print("%d.%d" % sys.version_info[:2])')-venv"
     if [ "$(id -u)" = "0" ] && command -v apt-get >/dev/null; then
-      echo "[setup] installing Debian package python3-venv (needed to create .venv)"
-      apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq python3-venv >/dev/null
-    else
-      echo "[setup] $PY cannot create a virtual environment. On Debian: sudo apt-get install -y python3-venv" >&2
+      echo "[setup] installing Debian package $pkg (needed to create .venv)"
+      apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq "$pkg" >/dev/null
+    fi
+    if ! $PY -c 'import ensurepip, venv' 2>/dev/null; then
+      echo "[setup] $PY cannot create a virtual environment. On Debian: sudo apt-get install -y $pkg" >&2
       exit 1
     fi
   fi

@@ -261,9 +261,9 @@ def test_demo_prints_the_truth_and_both_branches(tmp_path):
     rows = [line.split() for line in lines[header + 1:header + 1 + len(table)]]
     assert len(rows) == len(truth.segments) == 1
     for cells, true, row in zip(rows, truth.segments, table, strict=True):
-        assert float(cells[2]) == pytest.approx(true.coverage[key], abs=5e-4)
-        for column, name in ((3, "learned"), (4, "geometric")):
-            assert float(cells[column]) == pytest.approx(row[name], abs=5e-4)
+        values = (true.coverage[key], row["learned"], row["geometric"])
+        assert cells[2:] == ["n/a" if v is None else f"{v:.3f}" for v in values]
+    assert table[0]["geometric"] is not None  # this video's geometric branch answers
     assert (tmp_path / "run" / "report.html").stat().st_size > 0
 
     again = runner.invoke(app, args)

@@ -109,18 +109,16 @@ def test_odometry_keeps_the_estimate_of_a_pair_it_cannot_align(procedure):
 def test_depth_max_leaves_deeper_pixels_out(procedure):
     """depth_max counts in median depths: above every pixel it changes nothing; below every
     pixel no pair has points left, and each keeps its start."""
-    depth, rgb, K, poses = (x[:21] for x in procedure)
+    depth, rgb, K, poses = procedure
+    depth, rgb, poses = depth[:21], rgb[:21], poses[:21]
     start = {1: truth_at(poses, 1)}
     valid = np.concatenate([d[d > 0] for d in depth])
     median = median_depth(depth, None, "test")  # the unit of the odometry's thresholds
-    deepest, shallowest = valid.max(), valid.min()
     everything = refine_relative_poses(start, depth, rgb, K)
-    above_all = OdometryConfig(depth_max=1.01 * deepest / median)
     np.testing.assert_array_equal(
-        refine_relative_poses(start, depth, rgb, K, config=above_all).relative[1],
-        everything.relative[1])
-    nothing = refine_relative_poses(start, depth, rgb, K,
-                                    config=OdometryConfig(depth_max=0.99 * shallowest / median))
+        refine_relative_poses(start, depth, rgb, K, depth_max=1.01 * valid.max() / median
+                              ).relative[1], everything.relative[1])
+    nothing = refine_relative_poses(start, depth, rgb, K, depth_max=0.99 * valid.min() / median)
     assert everything.kept[1] == 0 and nothing.kept[1] == len(start[1])
     np.testing.assert_array_equal(nothing.relative[1], start[1])
 
@@ -148,8 +146,8 @@ def test_bad_input_is_refused(procedure):
         refine_relative_poses(rel, depth, rgb, K, np.ones((4, 4), bool))
     with pytest.raises(InputError, match="positive"):
         OdometryConfig(depth_huber=0.0)
-    with pytest.raises(InputError, match="positive"):
-        OdometryConfig(depth_max=0.0)
+    with pytest.raises(InputError, match="depth_max must be positive"):
+        refine_relative_poses(rel, depth, rgb, K, depth_max=float("nan"))
     with pytest.raises(InputError, match="per pyramid level"):
         OdometryConfig(iterations=())
     with pytest.raises(InputError, match="threads"):

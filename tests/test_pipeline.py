@@ -685,6 +685,8 @@ def test_cross_check_without_the_geometric_branch(tmp_path):
 def test_coverage_over_time_draws_both_branches_and_the_combined_value(tmp_path, monkeypatch):
     """The report's first figure: one line per segment and value given; the geometric line's
     opacity is 0.2 + 0.8 x its support (full where the support is unknown)."""
+    import matplotlib.pyplot as plt
+
     from hybrid import report
 
     figures = []
@@ -692,16 +694,19 @@ def test_coverage_over_time_draws_both_branches_and_the_combined_value(tmp_path,
     ingested = hand_made_work_dir(tmp_path / "work", [0.85, 0.55, 0.25, 0.10, None])
     table = cross_check(tmp_path / "work", ingested, RunConfig())
     report.coverage_over_time(table)
-    drawn = {}
+    drawn = {}  # by colour: (start, end, value, opacity) of each line
     for line in figures[0].axes[0].lines:
-        x, y = line.get_data()
-        if len(x) == 2 and x[0] != x[1] and y[0] == y[1] and tuple(x) != (0, 1):
-            drawn.setdefault(line.get_color(), []).append((x[0], y[0], line.get_alpha()))
+        (x0, x1), (y0, y1) = line.get_data()
+        drawn.setdefault(line.get_color(), []).append((x0, x1, y0, line.get_alpha()))
+        assert y0 == y1
+    plt.close(figures[0])
     rows = table.rows
-    np.testing.assert_allclose(drawn["#1f77b4"], [(r.start_s, r.learned, 1.0) for r in rows])
-    np.testing.assert_allclose(drawn["black"], [(r.start_s, r.coverage, 1.0) for r in rows])
-    np.testing.assert_allclose(drawn["#ff7f0e"], [(0.0, 0.85, 0.6), (0.4, 0.55, 1.0),
-                                                  (0.8, 0.25, 1.0), (1.2, 0.10, 0.2)])
+    for colour, key in (("#1f77b4", "learned"), ("black", "coverage")):
+        np.testing.assert_allclose(drawn[colour], [(r.start_s, r.end_s, getattr(r, key), 1.0)
+                                                   for r in rows])
+    np.testing.assert_allclose(drawn["#ff7f0e"], [(0.0, 0.4, 0.85, 0.6), (0.4, 0.8, 0.55, 1.0),
+                                                  (0.8, 1.2, 0.25, 1.0), (1.2, 1.6, 0.10, 0.2)])
+    assert set(drawn) == {"#1f77b4", "#ff7f0e", "black", "0.7"}  # and the class edges
 
 
 def test_eval_summary_by_hand():
