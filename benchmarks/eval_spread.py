@@ -4,13 +4,17 @@ and bias by the segment's place in its video (first, middle, last: a video's fir
 has context frames after it only, its last before it only); for `c2d2 eval`, the geometric
 branch's MAE and bias also by its support (the share of the segment's expected wall on the
 lumen fitted to the reconstruction: all of it, at least half, less than half), and the
-branches' 3-class agreement by the same bins.
+branches' 3-class agreement by the same bins. With --versus OTHER.json MODE OTHER_MODE, also
+in how many procedures (matched by folder name) MODE errs less or more than OTHER_MODE of the
+other file.
 
 Reads the eval.json of `c2d2 eval` (branches learned and geometric) or the geometric_eval.json
 of benchmarks/geometric_eval.py (each of its modes).
 
     python benchmarks/eval_spread.py data/eval-sim-w03/eval.json
     python benchmarks/eval_spread.py docs/geometric/thinned/geometric_eval.json
+    python benchmarks/eval_spread.py data/eval-heldout-6fps/eval.json \
+        --versus data/eval-heldout-support-vscale/eval.json geometric geometric
 """
 
 from __future__ import annotations
@@ -59,6 +63,9 @@ def errors(data: dict) -> dict[str, list[Row]]:
     return rows
 
 
+SUPPORT_BINS = ("all", "half or more", "under half")
+
+
 def support_bin(support: float | None) -> str | None:
     """A geometric support as 'all', 'half or more' or 'under half' (None: not known)."""
     if support is None:
@@ -76,7 +83,11 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("json", type=Path,
                         help="eval.json of c2d2 eval, or geometric_eval.json")
-    data = json.loads(parser.parse_args().json.read_text())
+    parser.add_argument("--versus", nargs=3, metavar=("OTHER_JSON", "MODE", "OTHER_MODE"),
+                        help="count the procedures where MODE errs less or more than the "
+                             "other file's OTHER_MODE")
+    args = parser.parse_args()
+    data = json.loads(args.json.read_text())
     for branch, rows in errors(data).items():
         procedures = sorted({r.procedure for r in rows})
         mae = np.mean([abs(r.error) for r in rows])
@@ -91,13 +102,35 @@ def main() -> None:
             f"{name} MAE {np.abs(e).mean():.3f} bias {np.mean(e):+.3f} ({len(e)})"
             for name, e in by_place.items() if e))
         by_support = {name: [r.error for r in rows if support_bin(r.support) == name]
-                      for name in ("all", "half or more", "under half")}
+                      for name in SUPPORT_BINS}
         if any(by_support.values()):
             print(f"{'':13s} by the support of its V: " + ", ".join(
                 f"{name} MAE {np.abs(e).mean():.3f} bias {np.mean(e):+.3f} ({len(e)})"
                 for name, e in by_support.items() if e))
     if "segments" in data:  # c2d2 eval: both branches
         print_agreement_by_support(data["segments"])
+    if args.versus:
+        other, mode, other_mode = args.versus
+        print_versus(errors(data)[mode], errors(json.loads(Path(other).read_text()))[other_mode],
+                     f"{mode} against {other}'s {other_mode}")
+
+
+def procedure_mae(rows: list[Row]) -> dict[str, float]:
+    """Each procedure's MAE, keyed by its folder's name."""
+    by_name: dict[str, list[float]] = {}
+    for r in rows:
+        by_name.setdefault(Path(r.procedure).name, []).append(abs(r.error))
+    return {name: float(np.mean(e)) for name, e in by_name.items()}
+
+
+def print_versus(rows: list[Row], other: list[Row], label: str) -> None:
+    """In how many procedures of both the rows err less, more or the same."""
+    mine, theirs = procedure_mae(rows), procedure_mae(other)
+    both = sorted(mine.keys() & theirs.keys())
+    less = sum(mine[p] < theirs[p] for p in both)
+    more = sum(mine[p] > theirs[p] for p in both)
+    print(f"{label}: MAE lower in {less}, higher in {more}, the same in "
+          f"{len(both) - less - more} of {len(both)} procedures")
 
 
 def print_agreement_by_support(segments: list[dict]) -> None:
@@ -111,7 +144,7 @@ def print_agreement_by_support(segments: list[dict]) -> None:
     if bins:
         print("agreement by the geometric support: " + ", ".join(
             f"{name} {np.mean(bins[name]):.3f} ({len(bins[name])})"
-            for name in ("all", "half or more", "under half") if name in bins))
+            for name in SUPPORT_BINS if name in bins))
 
 
 if __name__ == "__main__":

@@ -99,6 +99,13 @@ def depth_ratio(learned: list[np.ndarray], true: list[np.ndarray], stride: int =
     return float(np.median(np.concatenate(ratios)))
 
 
+def scaled_translations(poses: np.ndarray, factor: float) -> np.ndarray:
+    """A copy of (..., 4, 4) poses with their translations times factor (a change of unit)."""
+    poses = poses.copy()
+    poses[..., :3, 3] *= factor
+    return poses
+
+
 def learned_inputs(proc: Procedure, model, graph: PoseGraphConfig, odometry: OdometryConfig,
                    true_K_too: bool = False, depth_max: float = float("inf")) -> dict:
     """The depth model's depth and K, the smoothed poses (odometry first, unless off, leaving
@@ -119,11 +126,8 @@ def learned_inputs(proc: Procedure, model, graph: PoseGraphConfig, odometry: Odo
         """The network's relative poses (translations times to_cm), refined by odometry on
         `depth` (the network's if None) and K, then smoothed."""
         depth = out["depth"] if depth is None else depth
-        relative, kept = inferred.relative, None
-        if to_cm != 1.0:
-            relative = {g: rel.copy() for g, rel in relative.items()}
-            for rel in relative.values():
-                rel[:, :3, 3] *= to_cm
+        relative = {g: scaled_translations(rel, to_cm) for g, rel in inferred.relative.items()}
+        kept = None
         if odometry.enabled:
             refined = refine_relative_poses(relative, depth, frames, K, seq.region,
                                             odometry, name=str(proc.path),
@@ -152,8 +156,7 @@ def local_row(mode: str, proc: Procedure, learned: dict, depth_true: list[np.nda
     elif mode == "learned-local-true-K":
         depth, K, poses, scale = learned["depth"], proc.camera.K, learned["poses_true_K"], None
     elif mode == TRUE_ODOMETRY:  # poses already in cm
-        poses, _ = learned["smoothed"](proc.camera.K, depth_true, learned["to_cm"])
-        depth, K, scale = depth_true, proc.camera.K, 1.0
+        depth, K, poses, scale = depth_true, proc.camera.K, learned["poses_true_odometry"], 1.0
     else:
         swap, to_cm = LOCAL_SWAPS[mode], learned["to_cm"]
         depth = learned["depth"] if "depth" in swap else depth_true
@@ -161,11 +164,9 @@ def local_row(mode: str, proc: Procedure, learned: dict, depth_true: list[np.nda
         poses = learned["poses"] if "poses" in swap else proc.poses
         # depth and translations must share one unit, which `scale` makes cm
         if "poses" in swap and "depth" not in swap:  # learned translations to the true cm
-            poses = poses.copy()
-            poses[:, :3, 3] *= to_cm
+            poses = scaled_translations(poses, to_cm)
         if "depth" in swap and "poses" not in swap:  # true translations to the learned unit
-            poses = poses.copy()
-            poses[:, :3, 3] /= to_cm
+            poses = scaled_translations(poses, 1.0 / to_cm)
         scale = to_cm if "depth" in swap else 1.0
     segment_frames = proc.coverage.segment_frames
     local = local_segment_coverage(depth, K, poses, segment_frames, segment_frames // 2, None,
@@ -220,17 +221,22 @@ def run_procedure(proc: Procedure, model, graph: PoseGraphConfig, odometry: Odom
             out["odometry_kept"] = learned["odometry_kept"]
         if any(m in (*LOCAL_SWAPS, TRUE_ODOMETRY) for m in modes):
             learned["to_cm"] = depth_ratio(learned["depth"], depth_true)
+        if TRUE_ODOMETRY in modes:
+            tic = time.time()
+            learned["poses_true_odometry"] = learned["smoothed"](proc.camera.K, depth_true,
+                                                                 learned["to_cm"])[0]
+            learned["graph_s_true_odometry"] = time.time() - tic
     for mode in modes:
         tic = time.time()
         if mode in whole_video:
             row = whole_video_row(mode, proc, learned, depth_true, rgb, config, geometric)
         else:
             row = local_row(mode, proc, learned, depth_true, config, geometric)
-        # seconds: the geometry, with the odometry + pose graph where all poses are learned
-        # (local-poses-true-odometry runs its own inside local_row, so its seconds hold them)
+        # seconds: the geometry, with the odometry + pose graph where that mode's poses ran them
         graph_s = {"learned": learned.get("graph_s"), "learned-local": learned.get("graph_s"),
                    "local-metric": learned.get("graph_s"),
-                   "learned-local-true-K": learned.get("graph_s_true_K")}.get(mode) or 0.0
+                   "learned-local-true-K": learned.get("graph_s_true_K"),
+                   TRUE_ODOMETRY: learned.get("graph_s_true_odometry")}.get(mode) or 0.0
         row.update(seconds=time.time() - tic + graph_s, frames=proc.num_frames)
         out[mode] = row
         scale = f"scale {row['scale']:6.3f}  " if "scale" in row else ""

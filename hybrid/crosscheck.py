@@ -118,7 +118,7 @@ def cross_check(out: Path, ingested: Ingested, config) -> CrossCheck:
     for segment in learned:
         index, start, stop = segment["index"], segment["start"], segment["stop"]
         value_l, value_g = segment["coverage"], geometric.get(index)
-        mean = combined_coverage(value_l, value_g, support.get(index))
+        combined = combined_coverage(value_l, value_g, support.get(index))
         fraction = float(usable[start:stop].mean())
         assessable = fraction >= config.min_usable_fraction
         classes = coverage_class(value_l), coverage_class(value_g)
@@ -127,6 +127,7 @@ def cross_check(out: Path, ingested: Ingested, config) -> CrossCheck:
             value_l, value_g, support.get(index),
             None if value_g is None else value_l - value_g,
             classes[0], classes[1], None if value_g is None else classes[0] == classes[1],
-            mean, bool(assessable and mean is not None and mean < config.deficient_below),
+            combined,
+            bool(assessable and combined is not None and combined < config.deficient_below),
             bool(assessable), fraction))
     return CrossCheck(rows, config.deficient_below, config.min_usable_fraction, error)
