@@ -13,13 +13,16 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
-import open3d as o3d
 from scipy.spatial import cKDTree
 from tqdm import tqdm
 
 from hybrid.types import Camera, InputError, check_poses
+
+if TYPE_CHECKING:
+    import open3d as o3d
 
 DELTA_PAIRS_CM: tuple[tuple[float, float], ...] = ((1.0, 3.0), (1.0, 4.0), (1.0, 6.0))
 """The paper's (Δ0, Δ1) pairs, in cm."""
@@ -89,6 +92,8 @@ class SurfaceMesh:
         return cls.from_arrays(mesh.vertices, faces, name=str(path))
 
     def raycasting_scene(self) -> o3d.t.geometry.RaycastingScene:
+        import open3d as o3d  # here, so that the coverage networks import without Open3D
+
         scene = o3d.t.geometry.RaycastingScene()
         scene.add_triangles(o3d.core.Tensor(self.vertices.astype(np.float32)),
                             o3d.core.Tensor(self.triangles.astype(np.uint32)))
@@ -206,6 +211,8 @@ class VisibilityOracle:
         if candidates.size:
             rays = np.concatenate([np.broadcast_to(p, (candidates.size, 3)), rel[candidates]],
                                   axis=1).astype(np.float32)
+            import open3d as o3d
+
             occluded = self.scene.test_occlusions(
                 o3d.core.Tensor(rays), tnear=0.0, tfar=1.0 - _OCCLUSION_MARGIN).numpy()
             mask[candidates[occluded]] = False
@@ -223,6 +230,8 @@ class VisibilityOracle:
         direction = offset / np.where(dist > 1e-9, dist, 1.0)[:, None]
         direction[dist <= 1e-9] = (1.0, 0.0, 0.0)
         rays = np.concatenate([nearest, direction], axis=1).astype(np.float32)
+        import open3d as o3d
+
         wall = self.scene.cast_rays(o3d.core.Tensor(rays))["t_hit"].numpy()
         outside = np.flatnonzero(~(np.isfinite(wall) & (wall > dist)))
         if outside.size:

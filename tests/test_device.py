@@ -10,11 +10,14 @@ import numpy as np
 import pytest
 import torch
 from conftest import TINY
+from coverage_toys import SMALL, frame_loss, segment_loss, toy_samples
 from typer.testing import CliRunner
 
 from hybrid.cli import app
 from hybrid.types import InputError
 from learned.checkpoint import read_checkpoint
+from learned.coverage_nets import CoverageModel
+from learned.coverage_train import fit_model
 from learned.device import device_of, pick_device
 from learned.frames import open_sequence
 from learned.infer import infer_sequence
@@ -89,11 +92,6 @@ def test_training_on_cuda_resumes_on_the_cpu(tmp_path, moving_texture):
 
 @gpu
 def test_coverage_networks_train_on_cuda_and_predict_alike_on_the_cpu():
-    from test_learned_coverage import SMALL, frame_loss, segment_loss, toy_samples
-
-    from learned.coverage_nets import CoverageModel
-    from learned.coverage_train import fit_model
-
     samples = toy_samples()
     torch.manual_seed(0)
     untrained = (frame_loss(CoverageModel(SMALL), samples),
@@ -145,7 +143,7 @@ def test_the_fine_tune_terms_give_the_same_on_cuda(moving_texture):
         terms = model.loss(frames.to(device), region.to(device), chain_target=target)
         torch.manual_seed(2)  # the zoom boxes
         zoom = model.zoom_loss(frames[:, :2].to(device))
-        values.append(terms.as_floats() | {"zoom": float(zoom)})
+        values.append(terms.as_floats() | {"zoom": zoom.item()})
     for term in ("chain", "shading", "zoom", "total"):
         assert values[0][term] > 0
         assert values[1][term] == pytest.approx(values[0][term], rel=1e-3), term
