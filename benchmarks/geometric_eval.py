@@ -25,6 +25,10 @@ to learned depth, applied to the learned depth and translations alike), and
   local-poses-true-odometry  the same poses with the odometry run on the true depth and K
                 (the network's relative poses, put in cm, as its start): how much of the
                 poses' cost the odometry could win back if the depth it reads were right
+  local-poses-true-start  the same odometry started from the true relative poses: what the
+                odometry's own objective costs, where its start is right
+  local-poses-true-pairs  the true relative poses of the graph's gaps, smoothed by the pose
+                graph with no odometry: what the graph's smoothing alone costs
 Prints MAE, bias and 3-class accuracy per mode, the lumen fit errors, and the frames/s of the
 pose graph + TSDF + coverage, then the MAE by style; writes a JSON (benchmarks/eval_spread.py
 splits it by the segment's place in its video) and a scatter plot.
@@ -61,8 +65,11 @@ LOCAL_SWAPS = {"local-oracle": (), "local-metric": ("depth", "K", "poses"),
 """Diagnostic modes: which inputs are the learned ones (the rest true), scale from the truth."""
 BASIC_MODES = ("oracle", "oracle-s0.7", "oracle-s1.3", "oracle-rule", "learned", "learned-local")
 TRUE_ODOMETRY = "local-poses-true-odometry"
-MODES = (*BASIC_MODES, "learned-local-true-K", *LOCAL_SWAPS, TRUE_ODOMETRY)
-LOCAL_MODES = ("learned-local", "learned-local-true-K", *LOCAL_SWAPS, TRUE_ODOMETRY)
+POSE_PROBES = {TRUE_ODOMETRY: "poses_true_odometry", "local-poses-true-start": "poses_true_start",
+               "local-poses-true-pairs": "poses_true_pairs"}
+"""Diagnostic modes of the poses alone (depth and K true, poses in cm): their poses' key."""
+MODES = (*BASIC_MODES, "learned-local-true-K", *LOCAL_SWAPS, *POSE_PROBES)
+LOCAL_MODES = ("learned-local", "learned-local-true-K", *LOCAL_SWAPS, *POSE_PROBES)
 
 
 def lumen_errors(fitted_points: np.ndarray, fitted_radius: np.ndarray, proc: Procedure,
@@ -106,10 +113,18 @@ def scaled_translations(poses: np.ndarray, factor: float) -> np.ndarray:
     return poses
 
 
+def true_relative(poses: np.ndarray, gaps: tuple[int, ...]) -> dict[int, np.ndarray]:
+    """The true relative poses of each gap as infer_sequence gives them: [g][t] maps camera
+    t's points into camera t+g."""
+    return {g: np.linalg.inv(poses[g:]) @ poses[:-g] for g in gaps}
+
+
 def learned_inputs(proc: Procedure, model, graph: PoseGraphConfig, odometry: OdometryConfig,
-                   true_K_too: bool = False, depth_max: float = float("inf")) -> dict:
-    """The depth model's depth and K, the smoothed poses (odometry first, unless off, leaving
-    out pixels deeper than depth_max median depths), and the seconds of the networks and of
+                   true_K_too: bool = False, probe: dict | None = None,
+                   keep_translation: bool = False) -> dict:
+    """The depth model's depth and K, the smoothed poses (odometry first, unless off, with
+    refine_relative_poses' diagnostic arguments `probe`; with keep_translation the odometry's
+    rotations and the start's translations), and the seconds of the networks and of
     the odometry + pose graph; with true_K_too also the poses smoothed after an odometry with
     the true K ('poses_true_K'); and 'smoothed', the function that makes the poses, for
     other depth and K."""
@@ -121,17 +136,20 @@ def learned_inputs(proc: Procedure, model, graph: PoseGraphConfig, odometry: Odo
     tic = time.time()
     frames = [seq.frame(i) for i in range(seq.num_frames)] if odometry.enabled else []
 
-    def smoothed(K: np.ndarray, depth: list[np.ndarray] | None = None, to_cm: float = 1.0
-                 ) -> tuple[np.ndarray, dict | None]:
-        """The network's relative poses (translations times to_cm), refined by odometry on
-        `depth` (the network's if None) and K, then smoothed."""
+    def smoothed(K: np.ndarray, depth: list[np.ndarray] | None = None, to_cm: float = 1.0,
+                 start: dict[int, np.ndarray] | None = None) -> tuple[np.ndarray, dict | None]:
+        """The network's relative poses (translations times to_cm), or those of `start`,
+        refined by odometry on `depth` (the network's if None) and K, then smoothed."""
         depth = out["depth"] if depth is None else depth
-        relative = {g: scaled_translations(rel, to_cm) for g, rel in inferred.relative.items()}
+        relative = start or {g: scaled_translations(rel, to_cm)
+                             for g, rel in inferred.relative.items()}
         kept = None
         if odometry.enabled:
             refined = refine_relative_poses(relative, depth, frames, K, seq.region,
-                                            odometry, name=str(proc.path),
-                                            depth_max=depth_max)
+                                            odometry, name=str(proc.path), **(probe or {}))
+            if keep_translation:
+                for g, rel in refined.relative.items():
+                    rel[:, :3, 3] = relative[g][:, :3, 3]
             relative, kept = refined.relative, refined.kept
         return smooth_trajectory(relative, graph, name=str(proc.path)).poses, kept
 
@@ -155,8 +173,8 @@ def local_row(mode: str, proc: Procedure, learned: dict, depth_true: list[np.nda
         depth, K, poses, scale = learned["depth"], learned["K"], learned["poses"], None
     elif mode == "learned-local-true-K":
         depth, K, poses, scale = learned["depth"], proc.camera.K, learned["poses_true_K"], None
-    elif mode == TRUE_ODOMETRY:  # poses already in cm
-        depth, K, poses, scale = depth_true, proc.camera.K, learned["poses_true_odometry"], 1.0
+    elif mode in POSE_PROBES:  # poses already in cm
+        depth, K, poses, scale = depth_true, proc.camera.K, learned[POSE_PROBES[mode]], 1.0
     else:
         swap, to_cm = LOCAL_SWAPS[mode], learned["to_cm"]
         depth = learned["depth"] if "depth" in swap else depth_true
@@ -207,25 +225,33 @@ def whole_video_row(mode: str, proc: Procedure, learned: dict, depth_true: list[
 
 def run_procedure(proc: Procedure, model, graph: PoseGraphConfig, odometry: OdometryConfig,
                   config: ReconstructionConfig, geometric: GeometricConfig,
-                  modes: tuple[str, ...] = MODES, depth_max: float = float("inf")) -> dict:
+                  modes: tuple[str, ...] = MODES, probe: dict | None = None,
+                  keep_translation: bool = False) -> dict:
     truth = proc.coverage.segment_labels()
     depth_true = [proc.depth(i) for i in range(proc.num_frames)]
     out = {"truth": truth.tolist()}
     whole_video = [m for m in modes if m not in LOCAL_MODES]
     rgb = [proc.rgb(i) for i in range(proc.num_frames)] if whole_video else []
     learned = {}
-    if any(m.startswith("learned") or m in (*LOCAL_SWAPS, TRUE_ODOMETRY) for m in modes):
+    if any(m.startswith("learned") or m in (*LOCAL_SWAPS, *POSE_PROBES) for m in modes):
         learned = learned_inputs(proc, model, graph, odometry,
-                                 true_K_too="learned-local-true-K" in modes, depth_max=depth_max)
+                                 true_K_too="learned-local-true-K" in modes, probe=probe,
+                                 keep_translation=keep_translation)
         if "odometry_kept" in learned:  # pairs the odometry could not align, per gap
             out["odometry_kept"] = learned["odometry_kept"]
         if any(m in (*LOCAL_SWAPS, TRUE_ODOMETRY) for m in modes):
             learned["to_cm"] = depth_ratio(learned["depth"], depth_true)
-        if TRUE_ODOMETRY in modes:
+        gaps = tuple(sorted({1, *graph.skips}))
+        probes = {TRUE_ODOMETRY: lambda: learned["smoothed"](proc.camera.K, depth_true,
+                                                            learned["to_cm"])[0],
+                  "local-poses-true-start": lambda: learned["smoothed"](
+                      proc.camera.K, depth_true, start=true_relative(proc.poses, gaps))[0],
+                  "local-poses-true-pairs": lambda: smooth_trajectory(
+                      true_relative(proc.poses, gaps), graph, name=str(proc.path)).poses}
+        for mode in (m for m in modes if m in POSE_PROBES):
             tic = time.time()
-            learned["poses_true_odometry"] = learned["smoothed"](proc.camera.K, depth_true,
-                                                                 learned["to_cm"])[0]
-            learned["graph_s_true_odometry"] = time.time() - tic
+            learned[POSE_PROBES[mode]] = probes[mode]()
+            learned["graph_s_" + POSE_PROBES[mode]] = time.time() - tic
     for mode in modes:
         tic = time.time()
         if mode in whole_video:
@@ -236,7 +262,8 @@ def run_procedure(proc: Procedure, model, graph: PoseGraphConfig, odometry: Odom
         graph_s = {"learned": learned.get("graph_s"), "learned-local": learned.get("graph_s"),
                    "local-metric": learned.get("graph_s"),
                    "learned-local-true-K": learned.get("graph_s_true_K"),
-                   TRUE_ODOMETRY: learned.get("graph_s_true_odometry")}.get(mode) or 0.0
+                   **{m: learned.get("graph_s_" + key) for m, key in POSE_PROBES.items()}
+                   }.get(mode) or 0.0
         row.update(seconds=time.time() - tic + graph_s, frames=proc.num_frames)
         out[mode] = row
         scale = f"scale {row['scale']:6.3f}  " if "scale" in row else ""
@@ -297,7 +324,7 @@ def main() -> None:
     parser.add_argument("--skips", type=int, nargs="+", default=list(PoseGraphConfig().skips),
                         help="PoseGraphConfig.skips: the frame gaps whose relative poses "
                              "become pose-graph factors")
-    for field in ("rotation_sigma", "translation_sigma"):
+    for field in ("rotation_sigma", "translation_sigma", "gap_exponent", "velocity_weight"):
         parser.add_argument("--" + field.replace("_", "-"), type=float,
                             default=getattr(PoseGraphConfig(), field),
                             help="see PoseGraphConfig")
@@ -312,6 +339,18 @@ def main() -> None:
     parser.add_argument("--odometry-depth-max", type=float, default=float("inf"),
                         help="refine_relative_poses' depth_max: deeper pixels (in median "
                              "depths) are left out of the alignment")
+    parser.add_argument("--odometry-light-power", type=float, default=0.0,
+                        help="refine_relative_poses' light_power: the colour times (depth / "
+                             "median depth) ** this, undoing a light at the camera")
+    parser.add_argument("--odometry-method", default="hybrid",
+                        choices=("hybrid", "point-to-plane", "intensity"),
+                        help="refine_relative_poses' method")
+    parser.add_argument("--odometry-median", type=float, default=None,
+                        help="refine_relative_poses' median: the depth's median while aligned "
+                             "(default: the depth's own unit)")
+    parser.add_argument("--odometry-keep-translation", action="store_true",
+                        help="keep the odometry's rotations only, each pair's translation "
+                             "staying the network's (or the start's)")
     args = parser.parse_args()
     modes = tuple(args.modes)
     geometric = GeometricConfig(occlusion_tolerance=args.occlusion_tolerance)
@@ -320,20 +359,25 @@ def main() -> None:
 
     model = load_depth_model(args.checkpoint or SHIPPED_DEPTH)
     graph = PoseGraphConfig(skips=tuple(args.skips), rotation_sigma=args.rotation_sigma,
-                            translation_sigma=args.translation_sigma)
+                            translation_sigma=args.translation_sigma,
+                            gap_exponent=args.gap_exponent, velocity_weight=args.velocity_weight)
     config = ReconstructionConfig(voxel_cm=args.voxel_cm)
     odometry = OdometryConfig(enabled=not args.no_odometry,
                               iterations=tuple(args.odometry_iterations))
-    if TRUE_ODOMETRY in modes and not odometry.enabled:
-        parser.error(f"{TRUE_ODOMETRY} runs the odometry: drop --no-odometry")
+    for mode in (TRUE_ODOMETRY, "local-poses-true-start"):
+        if mode in modes and not odometry.enabled:
+            parser.error(f"{mode} runs the odometry: drop --no-odometry")
+    probe = {"depth_max": args.odometry_depth_max, "light_power": args.odometry_light_power,
+             "method": args.odometry_method, "median": args.odometry_median}
     paths = {input_name(p): p for p in expand_inputs(args.data)}
     results = {name: run_procedure(Procedure.open(p), model, graph, odometry, config, geometric,
-                                   modes, args.odometry_depth_max)
+                                   modes, probe, args.odometry_keep_translation)
                for name, p in paths.items()}
     table = summary(results, modes)
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "geometric_eval.json").write_text(json.dumps(
-        {"summary": table, "procedures": results}, indent=1) + "\n")
+        {"options": vars(args), "summary": table, "procedures": results}, indent=1,
+        default=str) + "\n")
     scatter(results, modes, args.out / "geometric_scatter.png")
     print(f"{'mode':12s} {'MAE':>6s} {'bias':>7s} {'3-class':>8s} {'n':>4s} "
           f"{'centre cm':>9s} {'r err cm':>8s} {'fps':>6s}")

@@ -3,11 +3,18 @@
 For each simulated procedure, over its first N frames: the shipped depth model's relative
 poses for one frame gap, then the same refined by fusion.odometry (given iterations per
 pyramid level; --half: at half resolution); against the true relative rotations, the per-axis
-slopes (x, y, z of the rotation vector, least squares through 0), the mean rotation error and
-the median angle between the estimated and the true translation directions, and the odometry's
-milliseconds per pair (on one thread unless --threads; the refined poses do not depend on it).
+slopes (x, y, z of the rotation vector, least squares through 0), the mean rotation error, the
+median angle between the estimated and the true translation directions and the median ratio of
+their lengths, and the odometry's milliseconds per pair (on one thread unless --threads; the
+refined poses do not depend on it). --true-inputs: the odometry reads the simulator's depth
+and K instead of the network's (the network's translations put in cm by the median depth
+ratio); --true-start: it starts from the true relative poses, so that what moves them is the
+odometry's objective alone; --light-power, --depth-max, --method and --median:
+refine_relative_poses' diagnostic arguments.
 
     python benchmarks/odometry_rotation.py --data data/cov-pink/proc_0012 --iterations 10 5 3
+    python benchmarks/odometry_rotation.py --data data/heldout --true-inputs --true-start \
+        --method point-to-plane
 """
 
 from __future__ import annotations
@@ -22,7 +29,8 @@ import torch
 from depth_diagnosis import axis_slopes
 from scipy.spatial.transform import Rotation
 
-from fusion.odometry import OdometryConfig, refine_relative_poses
+from fusion.odometry import OdometryConfig, median_depth, refine_relative_poses
+from hybrid.dataset import Procedure
 from learned.checkpoints import SHIPPED_DEPTH
 from learned.frames import open_sequence
 from learned.infer import infer_sequence
@@ -39,8 +47,10 @@ def figures(estimated: np.ndarray, truth: np.ndarray) -> str:
     u, v = (T[:, :3, 3] / np.linalg.norm(T[:, :3, 3], axis=1, keepdims=True)
             for T in (estimated, truth))
     direction = np.degrees(np.arccos(np.clip((u * v).sum(1), -1, 1)))
+    lengths = np.linalg.norm(estimated[:, :3, 3], axis=1) / np.linalg.norm(truth[:, :3, 3], axis=1)
     return (f"slopes {' / '.join(f'{v:.2f}' for v in slopes)}  rotation error {error:.3f}°  "
-            f"translation direction error {np.median(direction):.1f}°")
+            f"translation direction error {np.median(direction):.1f}°, "
+            f"length ratio {np.median(lengths):.2f}")
 
 
 def halved(frames: list[np.ndarray], depth: np.ndarray, K: np.ndarray
@@ -67,7 +77,23 @@ def main() -> None:
     parser.add_argument("--half", action="store_true", help="odometry at half resolution")
     parser.add_argument("--threads", type=int, default=1,
                         help="pairs aligned at once (ms/pair is then per this many cores)")
+    parser.add_argument("--true-inputs", action="store_true",
+                        help="the odometry reads the simulator's depth and K")
+    parser.add_argument("--true-start", action="store_true",
+                        help="start from the true relative poses (needs --true-inputs)")
+    parser.add_argument("--light-power", type=float, default=0.0,
+                        help="refine_relative_poses' light_power")
+    parser.add_argument("--depth-max", type=float, default=float("inf"),
+                        help="refine_relative_poses' depth_max, in median depths")
+    parser.add_argument("--method", default="hybrid",
+                        choices=("hybrid", "point-to-plane", "intensity"),
+                        help="refine_relative_poses' method")
+    parser.add_argument("--median", type=float, default=None,
+                        help="refine_relative_poses' median (default: the depth's own unit)")
     args = parser.parse_args()
+    if args.true_start and not args.true_inputs:
+        parser.error("--true-start puts true translations (cm) beside the depth: "
+                     "add --true-inputs")
     torch.set_num_threads(1)
     model = load_depth_model(SHIPPED_DEPTH)
     config = OdometryConfig(iterations=tuple(args.iterations))
@@ -79,18 +105,34 @@ def main() -> None:
         truth = np.linalg.inv(poses[args.gap:]) @ poses[:-args.gap]
         frames = [seq.frame(i) for i in range(count)]
         depth, K = inferred.depth, np.median(inferred.K_pairs, axis=0)
+        network_median = median_depth(depth, seq.region, path.name)
+        start = inferred.relative[args.gap]
+        if args.true_inputs:
+            proc = Procedure.open(path)
+            true_depth = np.stack([proc.depth(i) for i in range(count)])
+            to_cm = np.median(np.concatenate([t[d > 0] / d[d > 0] for t, d in
+                                              zip(true_depth[::10], depth[::10], strict=True)]))
+            start = truth if args.true_start else start.copy()
+            if not args.true_start:
+                start[:, :3, 3] *= to_cm
+            depth, K = true_depth, proc.camera.K
         if args.half:
             frames, depth, K = halved(frames, depth, K)
         tic = time.perf_counter()
-        refined = refine_relative_poses({args.gap: inferred.relative[args.gap]}, depth, frames,
-                                        K, config=config, name=path.name,
-                                        threads=args.threads)
+        refined = refine_relative_poses({args.gap: start}, depth, frames, K, seq.region,
+                                        config=config, name=path.name, threads=args.threads,
+                                        depth_max=args.depth_max, light_power=args.light_power,
+                                        method=args.method, median=args.median)
         ms = (time.perf_counter() - tic) / len(truth) * 1000
-        print(f"{path}: gap {args.gap}, {count} frames\n"
+        print(f"{path}: gap {args.gap}, {count} frames, network depth median "
+              f"{network_median:.3f}\n"
               f"  network   {figures(inferred.relative[args.gap], truth)}\n"
               f"  odometry  {figures(refined.relative[args.gap], truth)}  "
               f"{ms:.2f} ms/pair on {args.threads} thread(s) (iterations {args.iterations}"
-              f"{', half resolution' if args.half else ''})", flush=True)
+              f"{', half resolution' if args.half else ''}"
+              f"{', true depth and K' if args.true_inputs else ''}"
+              f"{', true start' if args.true_start else ''}, {args.method}"
+              f"{'' if args.median is None else f', median depth {args.median}'})", flush=True)
 
 
 if __name__ == "__main__":

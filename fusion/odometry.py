@@ -78,14 +78,26 @@ def refine_relative_poses(relative: dict[int, np.ndarray], depth: Sequence[np.nd
                           region: np.ndarray | None = None,
                           config: OdometryConfig = OdometryConfig(), name: str = "video",
                           progress: bool = False, threads: int | None = None,
-                          depth_max: float = float("inf")) -> RefinedPoses:
-    """Refine every relative pose of `relative` by hybrid (colour + depth) RGB-D odometry.
+                          depth_max: float = float("inf"), light_power: float = 0.0,
+                          method: str = "hybrid", median: float | None = None
+                          ) -> RefinedPoses:
+    """Refine every relative pose of `relative` by RGB-D odometry (colour + depth: hybrid).
 
     depth: (H, W) maps, 0 where unknown; rgb: (H, W, 3) uint8 frames of the same size; K at
     that size. Frames are read once, in order, a block at a time; the pairs of a block are
     aligned in `threads` threads (None: one per core) while the next block is read. The result
-    does not depend on the threads. depth_max, in median depths: both frames' deeper pixels
-    are left out (a diagnostic of benchmarks/geometric_eval.py; `c2d2 run` keeps every pixel).
+    does not depend on the threads. Diagnostics of benchmarks/geometric_eval.py and
+    benchmarks/odometry_rotation.py, left at their defaults by `c2d2 run` (docs/geometric.md,
+    "Where the poses' cost lies"):
+    - depth_max, in median depths: both frames' deeper pixels are left out;
+    - light_power: the colour times (depth / median depth) ** light_power, undoing a light at
+      the camera whose brightness falls with distance (displayed intensity goes as distance
+      ** (-2 / gamma) under an inverse-square light: about 1 for gamma 2);
+    - method: Open3D's "hybrid" (colour and depth), "point-to-plane" (depth) or "intensity"
+      (colour);
+    - median: the depth (and the poses' translations) rescaled to this median while aligned,
+      since the hybrid method weighs its depth residual, in the depth's unit, against the
+      intensity's, in [0, 1] (None: the depth's own unit).
     """
     if not relative:
         raise InputError(f"{name}: no relative poses to refine")
@@ -107,9 +119,18 @@ def refine_relative_poses(relative: dict[int, np.ndarray], depth: Sequence[np.nd
                          f"{np.asarray(region).dtype} {np.shape(region)}")
     if not depth_max > 0:
         raise InputError(f"{name}: the odometry's depth_max must be positive, got {depth_max}")
+    if median is not None and not median > 0:
+        raise InputError(f"{name}: the odometry's median must be positive, got {median}")
     if region is not None and region.all():  # nothing outside: no masking, no copying
         region = None
+    methods = {"hybrid": _odometry.Method.Hybrid, "intensity": _odometry.Method.Intensity,
+               "point-to-plane": _odometry.Method.PointToPlane}
+    if method not in methods:
+        raise InputError(f"{name}: the odometry's method must be one of {sorted(methods)}, "
+                         f"got {method!r}")
     scale = median_depth(depth, region, name)
+    unit = 1.0 if median is None else median / scale  # depth and translations times this
+    scale *= unit
     params = _odometry.OdometryLossParams(config.depth_outlier * scale, config.depth_huber * scale,
                                           config.intensity_huber)
     intrinsics = o3d.core.Tensor(K)
@@ -123,11 +144,13 @@ def refine_relative_poses(relative: dict[int, np.ndarray], depth: Sequence[np.nd
 
     def align(source: o3d.t.geometry.RGBDImage, target: o3d.t.geometry.RGBDImage,
               start: np.ndarray) -> _odometry.OdometryResult | None:
+        start = start.copy()
+        start[:3, 3] *= unit
         try:
             result = _odometry.rgbd_odometry_multi_scale(
                 source, target, intrinsics, o3d.core.Tensor(start), depth_scale=1.0,
                 depth_max=depth_max * scale, criteria_list=criteria,
-                method=_odometry.Method.Hybrid, params=params)
+                method=methods[method], params=params)
         except RuntimeError as err:  # Open3D's two ways of saying "cannot solve"
             if not any(m in str(err) for m in ("inlier_count", "tracking failed")):
                 raise
@@ -145,6 +168,7 @@ def refine_relative_poses(relative: dict[int, np.ndarray], depth: Sequence[np.nd
                 kept[g] += 1
             else:
                 refined[g][t - g] = result.transformation.numpy()
+                refined[g][t - g, :3, 3] /= unit
                 fitness[g][t - g] = result.fitness
 
     threads = thread_count(threads, "odometry threads")
@@ -154,7 +178,8 @@ def refine_relative_poses(relative: dict[int, np.ndarray], depth: Sequence[np.nd
         for begin in range(0, n, _BLOCK):
             stop = min(n, begin + _BLOCK)
             for t in range(begin, stop):  # read while the threads align the block before
-                window[t] = _images(rgb[t], depth[t], region, nearest, f"{name} frame {t}")
+                window[t] = _images(rgb[t], np.asarray(depth[t], np.float32) * np.float32(unit),
+                                    region, nearest, f"{name} frame {t}", (scale, light_power))
             bar.update(stop - begin)
             if pending is not None:
                 collect(*pending)
@@ -183,7 +208,8 @@ def _nearest_in(region: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _images(rgb: np.ndarray, depth: np.ndarray, region: np.ndarray | None,
-            nearest: tuple[np.ndarray, np.ndarray] | None, name: str
+            nearest: tuple[np.ndarray, np.ndarray] | None, name: str,
+            light: tuple[float, float] = (1.0, 0.0)
             ) -> tuple[o3d.t.geometry.RGBDImage, o3d.t.geometry.RGBDImage]:
     """The frame as the source of a pair and as its target. Outside the region, colour (and the
     target's depth) are copied from the nearest pixel inside, so that nothing outside is read,
@@ -194,6 +220,9 @@ def _images(rgb: np.ndarray, depth: np.ndarray, region: np.ndarray | None,
         raise InputError(f"{name}: expected a uint8 {d.shape + (3,)} RGB frame like its depth "
                          f"map, got {np.asarray(rgb).dtype} {np.shape(rgb)}")
     colour = np.asarray(rgb, np.float32) / 255.0
+    unit, power = light  # the light's compensation: (depth / unit) ** power
+    if power:
+        colour *= (np.maximum(d, 0) / np.float32(unit))[..., None] ** np.float32(power)
     if region is None:
         both = _rgbd(colour, d)
         return both, both

@@ -32,7 +32,8 @@ def truth_at(poses: np.ndarray, gap: int) -> np.ndarray:
     return np.linalg.inv(poses[gap:]) @ poses[:-gap]
 
 
-def test_odometry_recovers_the_rotation_from_a_wrong_start(procedure):
+@pytest.mark.parametrize("method", ["hybrid", "point-to-plane"])
+def test_odometry_recovers_the_rotation_from_a_wrong_start(procedure, method):
     depth, rgb, K, poses = procedure
     threads = o3d.utility.get_max_threads()
     rng = np.random.default_rng(0)
@@ -43,7 +44,7 @@ def test_odometry_recovers_the_rotation_from_a_wrong_start(procedure):
         axes *= np.radians(1.5) / np.linalg.norm(axes, axis=1, keepdims=True)
         start[g] = rel.copy()
         start[g][:, :3, :3] = Rotation.from_rotvec(axes).as_matrix() @ rel[:, :3, :3]
-    refined = refine_relative_poses(start, depth, rgb, K)
+    refined = refine_relative_poses(start, depth, rgb, K, method=method)
     for g in truth:
         before = rotation_error_deg(start[g], truth[g]).mean()
         after = rotation_error_deg(refined.relative[g], truth[g]).mean()
@@ -123,6 +124,25 @@ def test_depth_max_leaves_deeper_pixels_out(procedure):
     np.testing.assert_array_equal(nothing.relative[1], start[1])
 
 
+def test_median_makes_the_poses_independent_of_the_depth_unit(procedure):
+    """With `median` the pairs are aligned in one unit whatever the depth's own: depth and
+    translations ten times larger give the same rotations and ten times the translations.
+    Without it the hybrid method weighs depth against colour by the depth's unit, and the
+    poses move with it."""
+    depth, rgb, K, poses = procedure
+    depth, rgb, poses = depth[:21], rgb[:21], poses[:21]
+    start = truth_at(poses, 1)
+    tenfold = start.copy()
+    tenfold[:, :3, 3] *= 10
+    inputs = (({1: start}, depth), ({1: tenfold}, [10 * d for d in depth]))
+    fixed = [refine_relative_poses(s, d, rgb, K, median=0.3).relative[1] for s, d in inputs]
+    assert rotation_error_deg(fixed[1], fixed[0]).max() < 0.01  # float32 rounding: 0.002°
+    lengths = [np.linalg.norm(f[:, :3, 3], axis=1) for f in fixed]
+    np.testing.assert_allclose(lengths[1], 10 * lengths[0], rtol=0.02)
+    own = [refine_relative_poses(s, d, rgb, K).relative[1] for s, d in inputs]
+    assert rotation_error_deg(own[1], own[0]).mean() > 0.1
+
+
 def test_bad_input_is_refused(procedure):
     depth, rgb, K, poses = procedure
     rel = {1: truth_at(poses, 1)}
@@ -146,6 +166,10 @@ def test_bad_input_is_refused(procedure):
         refine_relative_poses(rel, depth, rgb, K, np.ones((4, 4), bool))
     with pytest.raises(InputError, match="positive"):
         OdometryConfig(depth_huber=0.0)
+    with pytest.raises(InputError, match="method must be one of"):
+        refine_relative_poses(rel, depth, rgb, K, method="icp")
+    with pytest.raises(InputError, match="median must be positive"):
+        refine_relative_poses(rel, depth, rgb, K, median=0.0)
     with pytest.raises(InputError, match="depth_max must be positive"):
         refine_relative_poses(rel, depth, rgb, K, depth_max=float("nan"))
     with pytest.raises(InputError, match="per pyramid level"):
