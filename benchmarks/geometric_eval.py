@@ -29,6 +29,9 @@ to learned depth, applied to the learned depth and translations alike), and
                 odometry's own objective costs, where its start is right
   local-poses-true-pairs  the true relative poses of the graph's gaps, smoothed by the pose
                 graph with no odometry: what the graph's smoothing alone costs
+  local-depth-surface     the learned depth for the surface reconstructed (and the lumen
+                fitted to it), the true depth for the visibility test; K and poses true
+  local-depth-visibility  the other way round
 Prints MAE, bias and 3-class accuracy per mode, the lumen fit errors, and the frames/s of the
 pose graph + TSDF + coverage, then the MAE by style; writes a JSON (benchmarks/eval_spread.py
 splits it by the segment's place in its video) and a scatter plot.
@@ -68,8 +71,10 @@ TRUE_ODOMETRY = "local-poses-true-odometry"
 POSE_PROBES = {TRUE_ODOMETRY: "poses_true_odometry", "local-poses-true-start": "poses_true_start",
                "local-poses-true-pairs": "poses_true_pairs"}
 """Diagnostic modes of the poses alone (depth and K true, poses in cm): their poses' key."""
-MODES = (*BASIC_MODES, "learned-local-true-K", *LOCAL_SWAPS, *POSE_PROBES)
-LOCAL_MODES = ("learned-local", "learned-local-true-K", *LOCAL_SWAPS, *POSE_PROBES)
+DEPTH_SPLIT = ("local-depth-surface", "local-depth-visibility")
+"""Diagnostic modes: the learned depth for one of its two uses, the true depth for the other."""
+MODES = (*BASIC_MODES, "learned-local-true-K", *LOCAL_SWAPS, *POSE_PROBES, *DEPTH_SPLIT)
+LOCAL_MODES = ("learned-local", "learned-local-true-K", *LOCAL_SWAPS, *POSE_PROBES, *DEPTH_SPLIT)
 
 
 def lumen_errors(fitted_points: np.ndarray, fitted_radius: np.ndarray, proc: Procedure,
@@ -168,13 +173,21 @@ def learned_inputs(proc: Procedure, model, graph: PoseGraphConfig, odometry: Odo
 def local_row(mode: str, proc: Procedure, learned: dict, depth_true: list[np.ndarray],
               config: ReconstructionConfig, geometric: GeometricConfig) -> dict:
     """Each segment on its own window (hybrid.segment_geometry): learned-local, or one of the
-    LOCAL_SWAPS diagnostics with the metric scale from the truth."""
+    diagnostics with the metric scale from the truth."""
+    seen = None  # the depth of the visibility test, where not the reconstructed one
     if mode == "learned-local":
         depth, K, poses, scale = learned["depth"], learned["K"], learned["poses"], None
     elif mode == "learned-local-true-K":
         depth, K, poses, scale = learned["depth"], proc.camera.K, learned["poses_true_K"], None
     elif mode in POSE_PROBES:  # poses already in cm
         depth, K, poses, scale = depth_true, proc.camera.K, learned[POSE_PROBES[mode]], 1.0
+    elif mode in DEPTH_SPLIT:  # all in the learned depth's unit, as local-depth
+        to_cm = learned["to_cm"]
+        true_depth = [d / to_cm for d in depth_true]
+        depth, seen = learned["depth"], true_depth
+        if mode == "local-depth-visibility":
+            depth, seen = seen, depth
+        K, poses, scale = proc.camera.K, scaled_translations(proc.poses, 1.0 / to_cm), to_cm
     else:
         swap, to_cm = LOCAL_SWAPS[mode], learned["to_cm"]
         depth = learned["depth"] if "depth" in swap else depth_true
@@ -189,7 +202,7 @@ def local_row(mode: str, proc: Procedure, learned: dict, depth_true: list[np.nda
     segment_frames = proc.coverage.segment_frames
     local = local_segment_coverage(depth, K, poses, segment_frames, segment_frames // 2, None,
                                    config, geometric, proc.camera.fps, proc.path.name,
-                                   scale=scale)
+                                   scale=scale, visibility_depth=seen)
     key = pair_key(DEFAULT_PAIR_CM)
     return {"pred": [np.nan if s.segment.coverage[key] is None else s.segment.coverage[key]
                      for s in local],
@@ -233,13 +246,14 @@ def run_procedure(proc: Procedure, model, graph: PoseGraphConfig, odometry: Odom
     whole_video = [m for m in modes if m not in LOCAL_MODES]
     rgb = [proc.rgb(i) for i in range(proc.num_frames)] if whole_video else []
     learned = {}
-    if any(m.startswith("learned") or m in (*LOCAL_SWAPS, *POSE_PROBES) for m in modes):
+    if any(m.startswith("learned") or m in (*LOCAL_SWAPS, *POSE_PROBES, *DEPTH_SPLIT)
+           for m in modes):
         learned = learned_inputs(proc, model, graph, odometry,
                                  true_K_too="learned-local-true-K" in modes, probe=probe,
                                  keep_translation=keep_translation)
         if "odometry_kept" in learned:  # pairs the odometry could not align, per gap
             out["odometry_kept"] = learned["odometry_kept"]
-        if any(m in (*LOCAL_SWAPS, TRUE_ODOMETRY) for m in modes):
+        if any(m in (*LOCAL_SWAPS, TRUE_ODOMETRY, *DEPTH_SPLIT) for m in modes):
             learned["to_cm"] = depth_ratio(learned["depth"], depth_true)
         gaps = tuple(sorted({1, *graph.skips}))
         probes = {TRUE_ODOMETRY: lambda: learned["smoothed"](proc.camera.K, depth_true,

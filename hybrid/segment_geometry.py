@@ -58,7 +58,8 @@ def local_segment_coverage(depth: Sequence[np.ndarray], K: np.ndarray, poses: np
                            segment_frames: int, context: int, region: np.ndarray | None,
                            reconstruction: ReconstructionConfig, geometric: GeometricConfig,
                            fps: float = 30.0, name: str = "video",
-                           scale: float | None = None, threads: int | None = None
+                           scale: float | None = None, threads: int | None = None,
+                           visibility_depth: Sequence[np.ndarray] | None = None
                            ) -> list[LocalSegment]:
     """Coverage of every full segment, each from a reconstruction of its own window.
 
@@ -67,11 +68,14 @@ def local_segment_coverage(depth: Sequence[np.ndarray], K: np.ndarray, poses: np
     barely moves, no surface) gets coverage None and the reason. Segments are computed in
     `threads` threads at once (None: one per core, at most 2: the TSDF holds Python's lock, so
     more gain little, and each holds its window's volume); the result does not depend on it.
+    visibility_depth, in depth's unit: the depth the visibility test reads, where it is not
+    the one reconstructed (a diagnostic of benchmarks/geometric_eval.py).
     """
     n = len(poses)
     if n < segment_frames:
         raise InputError(f"{name}: {n} frames is shorter than one segment ({segment_frames})")
     config = replace(geometric, segment_frames=segment_frames)
+    seen = depth if visibility_depth is None else visibility_depth
 
     def one(index: int) -> LocalSegment:
         start = index * segment_frames
@@ -84,7 +88,7 @@ def local_segment_coverage(depth: Sequence[np.ndarray], K: np.ndarray, poses: np
                               config=reconstruction, scale=scale, fps=fps, name=label)
             result = geometric_coverage(
                 rec.lumen, rec.poses[start - first:stop - first],
-                ScaledDepth(_Window(depth, start, stop), rec.scale, region), K, region, config,
+                ScaledDepth(_Window(seen, start, stop), rec.scale, region), K, region, config,
                 name=label)
             return LocalSegment(replace(result.segments[0], index=index, start=start, stop=stop),
                                 result)
