@@ -137,7 +137,7 @@ def learned_inputs(proc: Procedure, model, graph: PoseGraphConfig, odometry: Odo
     seq = open_sequence(proc.path, (model.config.height, model.config.width))
     inferred = infer_sequence(model, seq, tuple(sorted({1, *graph.skips})))
     out = {"depth": list(inferred.depth), "K": np.median(inferred.K_pairs, axis=0),
-           "network_s": time.time() - tic}
+           "gaps": tuple(inferred.relative), "network_s": time.time() - tic}
     tic = time.time()
     frames = [seq.frame(i) for i in range(seq.num_frames)] if odometry.enabled else []
 
@@ -146,8 +146,8 @@ def learned_inputs(proc: Procedure, model, graph: PoseGraphConfig, odometry: Odo
         """The network's relative poses (translations times to_cm), or those of `start`,
         refined by odometry on `depth` (the network's if None) and K, then smoothed."""
         depth = out["depth"] if depth is None else depth
-        relative = start or {g: scaled_translations(rel, to_cm)
-                             for g, rel in inferred.relative.items()}
+        relative = start if start is not None else {
+            g: scaled_translations(rel, to_cm) for g, rel in inferred.relative.items()}
         kept = None
         if odometry.enabled:
             refined = refine_relative_poses(relative, depth, frames, K, seq.region,
@@ -181,15 +181,8 @@ def local_row(mode: str, proc: Procedure, learned: dict, depth_true: list[np.nda
         depth, K, poses, scale = learned["depth"], proc.camera.K, learned["poses_true_K"], None
     elif mode in POSE_PROBES:  # poses already in cm
         depth, K, poses, scale = depth_true, proc.camera.K, learned[POSE_PROBES[mode]], 1.0
-    elif mode in DEPTH_SPLIT:  # all in the learned depth's unit, as local-depth
-        to_cm = learned["to_cm"]
-        true_depth = [d / to_cm for d in depth_true]
-        depth, seen = learned["depth"], true_depth
-        if mode == "local-depth-visibility":
-            depth, seen = seen, depth
-        K, poses, scale = proc.camera.K, scaled_translations(proc.poses, 1.0 / to_cm), to_cm
-    else:
-        swap, to_cm = LOCAL_SWAPS[mode], learned["to_cm"]
+    else:  # the depth-split modes are local-depth with one use of the depth swapped back
+        swap, to_cm = LOCAL_SWAPS["local-depth" if mode in DEPTH_SPLIT else mode], learned["to_cm"]
         depth = learned["depth"] if "depth" in swap else depth_true
         K = learned["K"] if "K" in swap else proc.camera.K
         poses = learned["poses"] if "poses" in swap else proc.poses
@@ -199,6 +192,10 @@ def local_row(mode: str, proc: Procedure, learned: dict, depth_true: list[np.nda
         if "depth" in swap and "poses" not in swap:  # true translations to the learned unit
             poses = scaled_translations(poses, 1.0 / to_cm)
         scale = to_cm if "depth" in swap else 1.0
+        if mode in DEPTH_SPLIT:  # the true depth, in the learned depth's unit, for one use
+            seen = [d / to_cm for d in depth_true]
+            if mode == "local-depth-visibility":
+                depth, seen = seen, depth
     segment_frames = proc.coverage.segment_frames
     local = local_segment_coverage(depth, K, poses, segment_frames, segment_frames // 2, None,
                                    config, geometric, proc.camera.fps, proc.path.name,
@@ -255,7 +252,7 @@ def run_procedure(proc: Procedure, model, graph: PoseGraphConfig, odometry: Odom
             out["odometry_kept"] = learned["odometry_kept"]
         if any(m in (*LOCAL_SWAPS, TRUE_ODOMETRY, *DEPTH_SPLIT) for m in modes):
             learned["to_cm"] = depth_ratio(learned["depth"], depth_true)
-        gaps = tuple(sorted({1, *graph.skips}))
+        gaps = learned["gaps"]
         probes = {TRUE_ODOMETRY: lambda: learned["smoothed"](proc.camera.K, depth_true,
                                                             learned["to_cm"])[0],
                   "local-poses-true-start": lambda: learned["smoothed"](
@@ -381,6 +378,9 @@ def main() -> None:
     for mode in (TRUE_ODOMETRY, "local-poses-true-start"):
         if mode in modes and not odometry.enabled:
             parser.error(f"{mode} runs the odometry: drop --no-odometry")
+    if args.odometry_keep_translation and not odometry.enabled:
+        parser.error("--odometry-keep-translation keeps the odometry's rotations: drop "
+                     "--no-odometry")
     probe = {"depth_max": args.odometry_depth_max, "light_power": args.odometry_light_power,
              "method": args.odometry_method, "median": args.odometry_median}
     paths = {input_name(p): p for p in expand_inputs(args.data)}

@@ -27,6 +27,7 @@ import cv2
 import numpy as np
 import torch
 from depth_diagnosis import axis_slopes
+from geometric_eval import depth_ratio
 from scipy.spatial.transform import Rotation
 
 from fusion.odometry import OdometryConfig, median_depth, refine_relative_poses
@@ -38,7 +39,9 @@ from learned.model import load_depth_model
 from learned.train import expand_inputs
 
 
-def figures(estimated: np.ndarray, truth: np.ndarray) -> str:
+def figures(estimated: np.ndarray, truth: np.ndarray, lengths: bool = False) -> str:
+    """Axis slopes, mean rotation error, median translation direction error and, where the
+    translations are in the truth's unit (`lengths`), their median length ratio."""
     a = Rotation.from_matrix(estimated[:, :3, :3]).as_rotvec()
     b = Rotation.from_matrix(truth[:, :3, :3]).as_rotvec()
     slopes = axis_slopes(a, b)
@@ -47,22 +50,24 @@ def figures(estimated: np.ndarray, truth: np.ndarray) -> str:
     u, v = (T[:, :3, 3] / np.linalg.norm(T[:, :3, 3], axis=1, keepdims=True)
             for T in (estimated, truth))
     direction = np.degrees(np.arccos(np.clip((u * v).sum(1), -1, 1)))
-    lengths = np.linalg.norm(estimated[:, :3, 3], axis=1) / np.linalg.norm(truth[:, :3, 3], axis=1)
+    ratio = np.linalg.norm(estimated[:, :3, 3], axis=1) / np.linalg.norm(truth[:, :3, 3], axis=1)
     return (f"slopes {' / '.join(f'{v:.2f}' for v in slopes)}  rotation error {error:.3f}°  "
-            f"translation direction error {np.median(direction):.1f}°, "
-            f"length ratio {np.median(lengths):.2f}")
+            f"translation direction error {np.median(direction):.1f}°"
+            + (f", length ratio {np.median(ratio):.2f}" if lengths else ""))
 
 
-def halved(frames: list[np.ndarray], depth: np.ndarray, K: np.ndarray
-           ) -> tuple[list[np.ndarray], list[np.ndarray], np.ndarray]:
-    """Frames (area), depth (nearest) and K at half the size, pixel centres kept."""
+def halved(frames: list[np.ndarray], depth: np.ndarray, K: np.ndarray, region: np.ndarray
+           ) -> tuple[list[np.ndarray], list[np.ndarray], np.ndarray, np.ndarray]:
+    """Frames (area), depth and region (nearest) and K at half the size, pixel centres kept."""
     h, w = depth.shape[1:]
     small = [cv2.resize(f, (w // 2, h // 2), interpolation=cv2.INTER_AREA) for f in frames]
     depth = [cv2.resize(d, (w // 2, h // 2), interpolation=cv2.INTER_NEAREST) for d in depth]
+    region = cv2.resize(region.astype(np.uint8), (w // 2, h // 2),
+                        interpolation=cv2.INTER_NEAREST).astype(bool)
     K = K.copy()
     K[:2, :2] /= 2
     K[:2, 2] = (K[:2, 2] + 0.5) / 2 - 0.5
-    return small, depth, K
+    return small, depth, K, region
 
 
 def main() -> None:
@@ -110,16 +115,16 @@ def main() -> None:
         if args.true_inputs:
             proc = Procedure.open(path)
             true_depth = np.stack([proc.depth(i) for i in range(count)])
-            to_cm = np.median(np.concatenate([t[d > 0] / d[d > 0] for t, d in
-                                              zip(true_depth[::10], depth[::10], strict=True)]))
+            to_cm = depth_ratio(depth, true_depth)
             start = truth if args.true_start else start.copy()
             if not args.true_start:
                 start[:, :3, 3] *= to_cm
             depth, K = true_depth, proc.camera.K
+        region = seq.region
         if args.half:
-            frames, depth, K = halved(frames, depth, K)
+            frames, depth, K, region = halved(frames, depth, K, region)
         tic = time.perf_counter()
-        refined = refine_relative_poses({args.gap: start}, depth, frames, K, seq.region,
+        refined = refine_relative_poses({args.gap: start}, depth, frames, K, region,
                                         config=config, name=path.name, threads=args.threads,
                                         depth_max=args.depth_max, light_power=args.light_power,
                                         method=args.method, median=args.median)
@@ -127,7 +132,7 @@ def main() -> None:
         print(f"{path}: gap {args.gap}, {count} frames, network depth median "
               f"{network_median:.3f}\n"
               f"  network   {figures(inferred.relative[args.gap], truth)}\n"
-              f"  odometry  {figures(refined.relative[args.gap], truth)}  "
+              f"  odometry  {figures(refined.relative[args.gap], truth, args.true_inputs)}  "
               f"{ms:.2f} ms/pair on {args.threads} thread(s) (iterations {args.iterations}"
               f"{', half resolution' if args.half else ''}"
               f"{', true depth and K' if args.true_inputs else ''}"

@@ -121,6 +121,9 @@ def refine_relative_poses(relative: dict[int, np.ndarray], depth: Sequence[np.nd
         raise InputError(f"{name}: the odometry's depth_max must be positive, got {depth_max}")
     if median is not None and not median > 0:
         raise InputError(f"{name}: the odometry's median must be positive, got {median}")
+    if not 0 <= light_power < float("inf"):
+        raise InputError(f"{name}: the odometry's light_power must be finite and not negative, "
+                         f"got {light_power}")
     if region is not None and region.all():  # nothing outside: no masking, no copying
         region = None
     methods = {"hybrid": _odometry.Method.Hybrid, "intensity": _odometry.Method.Intensity,

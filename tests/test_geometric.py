@@ -363,8 +363,8 @@ def test_local_segment_coverage_matches_the_exact_lumen(tmp_path):
     assert [s.segment for s in same] == [s.segment for s in local]
     near = local_segment_coverage([d * 10 for d in depth], camera.K, mm, 45, 20, None, config,
                                   GeometricConfig(), visibility_depth=[d * 5 for d in depth])
-    for hidden, seen in zip(near, local, strict=True):
-        assert hidden.segment.coverage[key] < 0.5 * seen.segment.coverage[key]
+    for hidden, full in zip(near, local, strict=True):
+        assert hidden.segment.coverage[key] < 0.5 * full.segment.coverage[key]
     for got, want in zip(local, exact.segments, strict=True):
         assert got.segment.coverage[key] == pytest.approx(want.coverage[key], abs=0.05)
     save_maps(local, tmp_path, "two segments")

@@ -143,6 +143,21 @@ def test_median_makes_the_poses_independent_of_the_depth_unit(procedure):
     assert rotation_error_deg(own[1], own[0]).mean() > 0.1
 
 
+def test_the_diagnostics_leave_the_default_alone_and_change_what_they_name(procedure):
+    """`median` at the depth's own median and `light_power` 0 give the default poses bit for
+    bit; a light power or another method moves them."""
+    depth, rgb, K, poses = procedure
+    depth, rgb, poses = depth[:11], rgb[:11], poses[:11]
+    start = {1: truth_at(poses, 1)}
+    default = refine_relative_poses(start, depth, rgb, K).relative[1]
+    same = refine_relative_poses(start, depth, rgb, K, light_power=0.0, method="hybrid",
+                                 median=median_depth(depth, None, "test")).relative[1]
+    np.testing.assert_array_equal(same, default)
+    for changed in ({"light_power": 1.0}, {"method": "intensity"}):
+        moved = refine_relative_poses(start, depth, rgb, K, **changed).relative[1]
+        assert np.abs(moved - default).max() > 1e-6, changed
+
+
 def test_bad_input_is_refused(procedure):
     depth, rgb, K, poses = procedure
     rel = {1: truth_at(poses, 1)}
@@ -170,6 +185,9 @@ def test_bad_input_is_refused(procedure):
         refine_relative_poses(rel, depth, rgb, K, method="icp")
     with pytest.raises(InputError, match="median must be positive"):
         refine_relative_poses(rel, depth, rgb, K, median=0.0)
+    for power in (-1.0, float("nan"), float("inf")):
+        with pytest.raises(InputError, match="light_power must be finite"):
+            refine_relative_poses(rel, depth, rgb, K, light_power=power)
     with pytest.raises(InputError, match="depth_max must be positive"):
         refine_relative_poses(rel, depth, rgb, K, depth_max=float("nan"))
     with pytest.raises(InputError, match="per pyramid level"):
