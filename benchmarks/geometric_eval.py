@@ -25,6 +25,8 @@ to learned depth, applied to the learned depth and translations alike), and
   local-poses-true-odometry  the same poses with the odometry run on the true depth and K
                 (the network's relative poses, put in cm, as its start): how much of the
                 poses' cost the odometry could win back if the depth it reads were right
+                (--odometry-depth-blend A: on true ** (1 - A) * learned ** A, the learned
+                depth put in cm, so that A = 0.5 errs about half as much in log depth)
   local-poses-true-start  the same odometry started from the true relative poses: what the
                 odometry's own objective costs, where its start is right
   local-poses-true-pairs  the true relative poses of the graph's gaps, smoothed by the pose
@@ -59,7 +61,7 @@ from hybrid.segment_geometry import local_segment_coverage
 from learned.coverage_eval import three_class
 from learned.frames import open_sequence
 from learned.infer import infer_sequence
-from learned.metrics import umeyama_sim3
+from learned.metrics import mre, umeyama_sim3
 from learned.model import load_depth_model
 from learned.train import expand_inputs, input_name
 
@@ -122,6 +124,14 @@ def true_relative(poses: np.ndarray, gaps: tuple[int, ...]) -> dict[int, np.ndar
     """The true relative poses of each gap as infer_sequence gives them: [g][t] maps camera
     t's points into camera t+g."""
     return {g: np.linalg.inv(poses[g:]) @ poses[:-g] for g in gaps}
+
+
+def blended(true: list[np.ndarray], learned: list[np.ndarray], to_cm: float, weight: float
+            ) -> list[np.ndarray]:
+    """true ** (1 - weight) * (learned * to_cm) ** weight per frame, 0 where the truth is."""
+    return [np.where(t > 0, np.maximum(t, 1e-6) ** (1 - weight)
+                     * (np.asarray(n, np.float64) * to_cm) ** weight, 0.0).astype(np.float32)
+            for t, n in zip(true, learned, strict=True)]
 
 
 def learned_inputs(proc: Procedure, model, graph: PoseGraphConfig, odometry: OdometryConfig,
@@ -236,7 +246,7 @@ def whole_video_row(mode: str, proc: Procedure, learned: dict, depth_true: list[
 def run_procedure(proc: Procedure, model, graph: PoseGraphConfig, odometry: OdometryConfig,
                   config: ReconstructionConfig, geometric: GeometricConfig,
                   modes: tuple[str, ...] = MODES, probe: dict | None = None,
-                  keep_translation: bool = False) -> dict:
+                  keep_translation: bool = False, blend: float = 0.0) -> dict:
     truth = proc.coverage.segment_labels()
     depth_true = [proc.depth(i) for i in range(proc.num_frames)]
     out = {"truth": truth.tolist()}
@@ -253,7 +263,14 @@ def run_procedure(proc: Procedure, model, graph: PoseGraphConfig, odometry: Odom
         if any(m in (*LOCAL_SWAPS, TRUE_ODOMETRY, *DEPTH_SPLIT) for m in modes):
             learned["to_cm"] = depth_ratio(learned["depth"], depth_true)
         gaps = learned["gaps"]
-        probes = {TRUE_ODOMETRY: lambda: learned["smoothed"](proc.camera.K, depth_true,
+        if TRUE_ODOMETRY in modes:  # the depth its odometry reads, and that depth's MRE
+            read = blended(depth_true, learned["depth"], learned["to_cm"], blend) if blend \
+                else depth_true
+            out["odometry_depth_mre"] = float(np.mean([
+                mre(r, t) for r, t in zip(read[::20], depth_true[::20], strict=True)]))
+            print(f"{proc.path}: the true-odometry's depth, MRE "
+                  f"{out['odometry_depth_mre']:.3f}", flush=True)
+        probes = {TRUE_ODOMETRY: lambda: learned["smoothed"](proc.camera.K, read,
                                                             learned["to_cm"])[0],
                   "local-poses-true-start": lambda: learned["smoothed"](
                       proc.camera.K, depth_true, start=true_relative(proc.poses, gaps))[0],
@@ -359,6 +376,8 @@ def main() -> None:
     parser.add_argument("--odometry-median", type=float, default=None,
                         help="refine_relative_poses' median: the depth's median while aligned "
                              "(default: the depth's own unit)")
+    parser.add_argument("--odometry-depth-blend", type=float, default=0.0,
+                        help=f"{TRUE_ODOMETRY}'s odometry reads true ** (1 - A) * learned ** A")
     parser.add_argument("--odometry-keep-translation", action="store_true",
                         help="keep the odometry's rotations only, each pair's translation "
                              "staying the network's (or the start's)")
@@ -385,7 +404,8 @@ def main() -> None:
              "method": args.odometry_method, "median": args.odometry_median}
     paths = {input_name(p): p for p in expand_inputs(args.data)}
     results = {name: run_procedure(Procedure.open(p), model, graph, odometry, config, geometric,
-                                   modes, probe, args.odometry_keep_translation)
+                                   modes, probe, args.odometry_keep_translation,
+                                   args.odometry_depth_blend)
                for name, p in paths.items()}
     table = summary(results, modes)
     args.out.mkdir(parents=True, exist_ok=True)
