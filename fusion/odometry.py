@@ -223,9 +223,9 @@ def _images(rgb: np.ndarray, depth: np.ndarray, region: np.ndarray | None,
         raise InputError(f"{name}: expected a uint8 {d.shape + (3,)} RGB frame like its depth "
                          f"map, got {np.asarray(rgb).dtype} {np.shape(rgb)}")
     colour = np.asarray(rgb, np.float32) / 255.0
-    unit, power = light  # the light's compensation: (depth / unit) ** power
+    reference, power = light  # the light's compensation: (depth / reference) ** power
     if power:
-        colour *= (np.maximum(d, 0) / np.float32(unit))[..., None] ** np.float32(power)
+        colour *= (np.maximum(d, 0) / np.float32(reference))[..., None] ** np.float32(power)
     if region is None:
         both = _rgbd(colour, d)
         return both, both
