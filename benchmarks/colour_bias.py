@@ -3,8 +3,9 @@
 The renderer samples the wall's texture (40 texels a cm, detail down to 1-2 texels) once per
 pixel, and a pixel spans 0.05-0.2 cm of wall at 2-8 cm. This re-renders the first N frames of
 a simulated procedure from its own scene with S x S supersampling (S times the width and
-height, blur in the same angle, no noise; averaged back over each S x S block, then the
-style's noise added once; S = 1: no supersampling) and the style's fields changed by --set
+height, blur in the same angle, no noise; averaged back over each S x S block of the
+displayed (gamma-encoded, 8-bit) image, then the style's noise added once; S = 1: no
+supersampling) and the style's fields changed by --set
 (e.g. vignetting=0, specular=0), and prints, for the procedure's own frames and the
 re-rendered ones: their mean absolute difference (grey levels) and the relative poses (gap
 1) that the odometry (`--method`) finds on the true depth and K from the true start, scored
@@ -13,6 +14,9 @@ as benchmarks/odometry_rotation.py scores them.
     python benchmarks/colour_bias.py --procedure data/heldout/proc_0001 --frames 150
     python benchmarks/colour_bias.py --procedure data/heldout/proc_0001 --factor 1 \
         --set vignetting=0
+    python benchmarks/colour_bias.py --procedure data/heldout/proc_0001 --factor 1 \
+        --set light_gain=0 --set ambient=1 --set specular=0 --set vignetting=0 \
+        --set noise_std=0 --set blur_sigma_px=0          # flat light: the albedo alone
 """
 
 from __future__ import annotations
@@ -73,9 +77,10 @@ def main() -> None:
     parser.add_argument("--frames", type=int, default=150, help="first N frames")
     parser.add_argument("--factor", type=int, default=4, help="supersampling per axis")
     parser.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
-                        help="a style field for the re-render (hybrid.sim.appearance.Style)")
-    parser.add_argument("--method", default="intensity",
-                        choices=("hybrid", "point-to-plane", "intensity"))
+                        help="a numeric style field for the re-render "
+                             "(hybrid.sim.appearance.Style)")
+    parser.add_argument("--method", default="intensity", choices=("hybrid", "intensity"),
+                        help="an odometry that reads colour")
     parser.add_argument("--median", type=float, default=0.3,
                         help="refine_relative_poses' median (the depth's unit while aligned)")
     args = parser.parse_args()

@@ -103,9 +103,8 @@ def depth_ratio(learned: list[np.ndarray], true: list[np.ndarray], stride: int =
     """The median ratio of true to learned depth over the pixels of every stride-th frame: the
     factor that makes the learned depth (and translations, in the same unit) centimetres."""
     if learned[0].shape != true[0].shape:
-        raise SystemExit(f"the local-* modes mix learned and true inputs, which needs the "
-                         f"simulator's frames at the network's size: {true[0].shape} against "
-                         f"{learned[0].shape}")
+        raise SystemExit(f"learned and true depth side by side need the simulator's frames "
+                         f"at the network's size: {true[0].shape} against {learned[0].shape}")
     ratios = []
     for pred, gt in zip(learned[::stride], true[::stride], strict=True):
         ok = (pred > 0) & (gt > 0)
@@ -397,6 +396,11 @@ def main() -> None:
     for mode in (TRUE_ODOMETRY, "local-poses-true-start"):
         if mode in modes and not odometry.enabled:
             parser.error(f"{mode} runs the odometry: drop --no-odometry")
+    if not 0 <= args.odometry_depth_blend <= 1:
+        parser.error("--odometry-depth-blend must lie in [0, 1]")
+    if args.odometry_depth_blend and TRUE_ODOMETRY not in modes:
+        parser.error(f"--odometry-depth-blend is read by {TRUE_ODOMETRY} alone: add it to "
+                     f"--modes")
     if args.odometry_keep_translation and not odometry.enabled:
         parser.error("--odometry-keep-translation keeps the odometry's rotations: drop "
                      "--no-odometry")

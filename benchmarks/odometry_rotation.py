@@ -4,9 +4,10 @@ For each simulated procedure, over its first N frames: the shipped depth model's
 poses for one frame gap, then the same refined by fusion.odometry (given iterations per
 pyramid level; --half: at half resolution); against the true relative rotations, the per-axis
 slopes (x, y, z of the rotation vector, least squares through 0), the mean rotation error, the
-median angle between the estimated and the true translation directions and the median ratio of
-their lengths, and the odometry's milliseconds per pair (on one thread unless --threads; the
-refined poses do not depend on it). --true-inputs: the odometry reads the simulator's depth
+median angle between the estimated and the true translation directions, with --true-inputs the
+median ratio of the odometry's translation lengths to the true ones, and the odometry's
+milliseconds per pair (on one thread unless --threads; the refined poses do not depend on
+it). --true-inputs: the odometry reads the simulator's depth
 and K instead of the network's (the network's translations put in cm by the median depth
 ratio); --true-start: it starts from the true relative poses, so that what moves them is the
 odometry's objective alone; --light-power, --depth-max, --method and --median:
