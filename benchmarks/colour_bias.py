@@ -28,6 +28,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+from geometric_eval import true_relative
 from odometry_rotation import figures
 
 from fusion.odometry import refine_relative_poses
@@ -91,7 +92,7 @@ def main() -> None:
     changes = {k: float(v) for k, v in (item.split("=", 1) for item in args.set)}
     again = rendered(scene, config, args.factor, count, changes, np.random.default_rng(0))
     depth = [proc.depth(i) for i in range(count)]
-    truth = np.linalg.inv(proc.poses[1:count]) @ proc.poses[:count - 1]
+    truth = true_relative(proc.poses[:count], (1,))[1]
     difference = np.mean([np.abs(a.astype(float) - b).mean() for a, b in zip(own, again,
                                                                            strict=True)])
     print(f"{proc.path}: {count} frames, re-rendered at {args.factor}x{args.factor} "

@@ -28,7 +28,7 @@ import cv2
 import numpy as np
 import torch
 from depth_diagnosis import axis_slopes
-from geometric_eval import depth_ratio
+from geometric_eval import depth_ratio, scaled_translations, true_relative
 from scipy.spatial.transform import Rotation
 
 from fusion.odometry import OdometryConfig, median_depth, refine_relative_poses
@@ -107,8 +107,7 @@ def main() -> None:
         seq = open_sequence(path, (model.config.height, model.config.width))
         count = min(args.frames, seq.num_frames)
         inferred = infer_sequence(model, seq, (args.gap,), frames=range(count))
-        poses = seq.poses[:count]
-        truth = np.linalg.inv(poses[args.gap:]) @ poses[:-args.gap]
+        truth = true_relative(seq.poses[:count], (args.gap,))[args.gap]
         frames = [seq.frame(i) for i in range(count)]
         depth, K = inferred.depth, np.median(inferred.K_pairs, axis=0)
         network_median = median_depth(depth, seq.region, path.name)
@@ -116,10 +115,8 @@ def main() -> None:
         if args.true_inputs:
             proc = Procedure.open(path)
             true_depth = np.stack([proc.depth(i) for i in range(count)])
-            to_cm = depth_ratio(depth, true_depth)
-            start = truth if args.true_start else start.copy()
-            if not args.true_start:
-                start[:, :3, 3] *= to_cm
+            start = truth if args.true_start else scaled_translations(
+                start, depth_ratio(depth, true_depth))  # the network's translations in cm
             depth, K = true_depth, proc.camera.K
         region = seq.region
         if args.half:

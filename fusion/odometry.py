@@ -181,8 +181,9 @@ def refine_relative_poses(relative: dict[int, np.ndarray], depth: Sequence[np.nd
         for begin in range(0, n, _BLOCK):
             stop = min(n, begin + _BLOCK)
             for t in range(begin, stop):  # read while the threads align the block before
-                window[t] = _images(rgb[t], np.asarray(depth[t], np.float32) * np.float32(unit),
-                                    region, nearest, f"{name} frame {t}", (scale, light_power))
+                d = depth[t] if median is None else np.asarray(depth[t], np.float32) * unit
+                window[t] = _images(rgb[t], d, region, nearest, f"{name} frame {t}",
+                                    (scale, light_power))
             bar.update(stop - begin)
             if pending is not None:
                 collect(*pending)
