@@ -10,7 +10,12 @@ cannot make.
 With --fold and --plus-fold-training, the model is fitted on that fold's training procedures
 as well as on --train: the fold model's data and more, a point on the learning curve. With
 --data, both models are also scored on those procedures (which neither saw).
-The --train procedures must not include any of the run's (checked by name).
+With --frame-train, more procedures train the per-frame network alone (stage 1), e.g. ones
+simulated with `--frame-step 4` (docs/coverage.md, "Sparse procedures for the per-frame
+network").
+The --train procedures must not include any of the run's (checked by name), nor the
+--frame-train ones any colon of the run, --train or --data. With --plus-fold-training the
+run's own per-frame procedures (`train-coverage --frame-data`) train the new model too.
 
     python benchmarks/coverage_heldout.py --run data/runs/coverage-hops --fold 0 \
         --train data/cov-pink-short --train data/cov-dusk-short --count 38 \
@@ -32,7 +37,13 @@ from pathlib import Path
 
 from learned.coverage_eval import Predictions, coverage_metrics, format_table
 from learned.coverage_nets import load_coverage_model
-from learned.coverage_train import evaluate, fit_model, load_run, load_samples
+from learned.coverage_train import (
+    check_no_shared_colon,
+    evaluate,
+    fit_model,
+    load_run,
+    load_samples,
+)
 from learned.train import expand_inputs, input_name
 
 
@@ -40,8 +51,10 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--run", type=Path, required=True)
     parser.add_argument("--fold", type=int, default=None, help="one fold (default: all)")
-    parser.add_argument("--train", type=Path, action="append", required=True,
+    parser.add_argument("--train", type=Path, action="append", default=[],
                         help="a folder of simulated procedures (repeat)")
+    parser.add_argument("--frame-train", type=Path, action="append", default=[],
+                        help="a folder of procedures for the per-frame network alone (repeat)")
     parser.add_argument("--count", type=int, default=None,
                         help="take the first COUNT procedures of each --train folder")
     parser.add_argument("--plus-fold-training", action="store_true",
@@ -65,6 +78,15 @@ def main() -> None:
     if clash := sorted({input_name(p) for p in expand_inputs(args.data)}
                        & (set(names) | set(record["procedures"]))):
         raise SystemExit(f"error: --data holds procedures of {args.run} or --train: {clash}")
+    # the fold model's per-frame procedures belong to its training data
+    run_frames = [Path(p) for p in record.get("frame_data", [])] if args.plus_fold_training else []
+    if run_frames or args.frame_train:
+        check_no_shared_colon([Path(p) for p in record["data"]] + paths + args.data,
+                              run_frames + args.frame_train)
+    frame_paths = expand_inputs(run_frames + args.frame_train)
+    names += [f"frames only: {input_name(p)}" for p in frame_paths]
+    if not (paths or frame_paths or fold_training):
+        parser.error("nothing to train on: give --train, --frame-train or --plus-fold-training")
     depth = Path(record["depth_checkpoint"]["path"])
     sidecar = args.out.with_suffix(".json")
     if args.out.is_file():
@@ -76,12 +98,14 @@ def main() -> None:
     else:
         train = [samples[i] for i in fold_training] + load_samples(paths, config, depth,
                                                                    progress=True)
+        frames = load_samples(frame_paths, config, depth, progress=True, frames_only=True)
         tic = time.time()
-        model = fit_model(train, config, lambda entry: None, progress=True)
+        model = fit_model(train, config, lambda entry: None, progress=True, frame_samples=frames)
         model.save(args.out)
         sidecar.write_text(json.dumps({"procedures": names}, indent=1) + "\n")
         print(f"fitted on {len(train)} procedures ({sum(len(s.inputs) for s in train)} "
-              f"frames) in {time.time() - tic:.0f} s")
+              f"frames) and {len(frames)} for the per-frame network alone "
+              f"({sum(len(s.inputs) for s in frames)} frames) in {time.time() - tic:.0f} s")
     fold_models = {k: load_coverage_model(args.run / f"fold-{k}.safetensors")
                    for k in (range(len(folds)) if args.fold is None else [args.fold])}
     ours, theirs = Predictions(), Predictions()
@@ -91,7 +115,8 @@ def main() -> None:
         evaluate(model, held, ours)
     which = "all folds" if args.fold is None else f"fold {args.fold}"
     ours_name = "trained on --train" + (f" + fold {args.fold}'s training"
-                                        if args.plus_fold_training else "")
+                                        if args.plus_fold_training else "") + (
+        " + --frame-train" if frame_paths else "")
     rows = {f"the run's fold models, {which}": coverage_metrics(theirs),
             f"{ours_name}, {which}": coverage_metrics(ours)}
     if args.data:

@@ -82,13 +82,17 @@ def simulate(
         help="Give procedure i the camera that procedure i of this seed has with the same "
              "--preset and --length-cm (colon, withdrawal and texture stay --seed's), so that "
              "two styles can share their cameras.")] = None,
+    frame_step: Annotated[int | None, typer.Option(
+        min=1, help="Keep every N-th frame of each withdrawal only (a video at 30 / N fps; N "
+                    "divides the 300-frame segments): cheap procedures for the per-frame "
+                    "coverage network (train-coverage --frame-data).")] = None,
 ):
     """Simulate procedures with rendered RGB, depth, poses and exact ground-truth coverage."""
     from hybrid.sim.simulate import SimConfig, simulate_dataset, with_overrides
 
     try:
         config = with_overrides(SimConfig(preset=preset, style=style, camera_seed=camera_seed),
-                                length_cm, max_frames)
+                                length_cm, max_frames, frame_step)
     except ValueError as err:
         raise InputError(str(err)) from err
     for path in simulate_dataset(out, procedures, seed, config, workers, first_index):
@@ -524,6 +528,9 @@ def train_coverage(
     set_: Annotated[list[str] | None, typer.Option(
         "--set", help="Override a config field, e.g. --set input_depth=true (see "
         "learned/config.py CoverageConfig).")] = None,
+    frame_data: Annotated[list[Path] | None, typer.Option(
+        help="More simulated procedures for the per-frame network alone, in the training "
+             "set of every fold (e.g. made with simulate --frame-step 4).")] = None,
     device: Device = "auto",
 ):
     """Train the per-frame then the per-segment coverage network, with k-fold CV; resumes.
@@ -539,7 +546,7 @@ def train_coverage(
     except ValueError as err:
         raise InputError(str(err)) from err
     typer.echo(str(run(data, out, config, depth_checkpoint or _shipped_checkpoint(),
-                       device=pick_device(device))))
+                       device=pick_device(device), frame_data=frame_data or [])))
 
 
 @app.command("eval-coverage")

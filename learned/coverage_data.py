@@ -67,32 +67,42 @@ class ProcedureSamples:
 
 
 def procedure_samples(path: Path, config: CoverageConfig, depth_model: DepthModel | None,
-                      depth_tag: str, progress: bool = False) -> ProcedureSamples:
+                      depth_tag: str, progress: bool = False,
+                      frames_only: bool = False) -> ProcedureSamples:
     """Inputs and labels of one simulated procedure (from its cache when present).
 
     depth_tag names the depth model (e.g. a hash of its checkpoint) in the cache file name.
+    frames_only: samples for the per-frame network alone, with no windows or segments; the
+    procedure may then keep every k-th frame (`c2d2 simulate --frame-step k`, k dividing the
+    travel gap), its travel then read over the same time as at the full rate.
     """
     proc = Procedure.open(path)
     truth = proc.coverage
     T, stride = config.segment_frames, config.segment_stride
-    if truth.segment_frames != T:
-        raise InputError(f"{proc.path}: its segments are {truth.segment_frames} frames, the "
-                         f"coverage networks' are {T}")
-    if proc.camera.fps != config.frame_rate:
+    step = config.frame_rate / proc.camera.fps
+    if frames_only and not (step == round(step) >= 1 and config.travel_gap % round(step) == 0):
+        raise InputError(f"{proc.path}: {proc.camera.fps:g} fps; per-frame samples need "
+                         f"{config.frame_rate:g} fps divided by a whole number that divides "
+                         f"the travel gap of {config.travel_gap} frames")
+    if not frames_only and proc.camera.fps != config.frame_rate:
         raise InputError(f"{proc.path}: {proc.camera.fps:g} fps, the coverage networks train "
                          f"on {config.frame_rate:g} fps")
+    if not frames_only and truth.segment_frames != T:
+        raise InputError(f"{proc.path}: its segments are {truth.segment_frames} frames, the "
+                         f"coverage networks' are {T}")
+    gap = config.travel_frames(proc.camera.fps)
     cache = proc.path / "cache"
     size = f"{config.height}x{config.width}" + ("" if config.median_normalise else "-log")
     predicted = config.input_depth != "true"
     inputs_path = cache / f"input-{depth_tag if predicted else 'true'}-{size}.npy"
     medians_path = cache / f"medians-{depth_tag if predicted else 'true'}.npy"
-    relative_path = cache / f"relative-{depth_tag}-{config.travel_gap}.npy"
+    relative_path = cache / f"relative-{depth_tag}-{gap}.npy"
     view_path = cache / f"view-{depth_tag}.npy"
     # One pass of the depth model for whichever of its caches are missing: the travel's pairs,
     # and consecutive pairs for the view (their median K, as `c2d2 run`'s intrinsics.json).
     missing_depth = predicted and not (inputs_path.is_file() and (
         medians_path.is_file() or not config.depth_scale))
-    gaps = {config.travel_gap} if config.travel_gap and not relative_path.is_file() else set()
+    gaps = {gap} if gap and not relative_path.is_file() else set()
     if config.field_of_view == "predicted" and not view_path.is_file():
         gaps.add(1)
     network = functools.cache(lambda: _network_outputs(proc, depth_model, missing_depth,
@@ -107,12 +117,11 @@ def procedure_samples(path: Path, config: CoverageConfig, depth_model: DepthMode
                                name=str(proc.path))
     else:
         scale = np.zeros((len(inputs), 0), dtype=np.float32)
-    if config.travel_gap:
-        relative = _cached(relative_path, lambda: network()[1].relative[config.travel_gap])
+    if gap:
+        relative = _cached(relative_path, lambda: network()[1].relative[gap])
         travel = travel_features(relative, len(inputs), name=str(proc.path))
         if config.travel_hops:
-            chained = chain_relative(relative, config.travel_gap, config.travel_hops,
-                                     name=str(proc.path))
+            chained = chain_relative(relative, gap, config.travel_hops, name=str(proc.path))
             travel = np.concatenate([travel, travel_features(chained, len(inputs),
                                                              name=str(proc.path))], axis=1)
     else:
@@ -125,16 +134,20 @@ def procedure_samples(path: Path, config: CoverageConfig, depth_model: DepthMode
                   if config.field_of_view == "predicted"
                   else view_values(camera.K, camera.width, camera.height, 1, str(proc.path))[0])
         view = np.tile(values, (len(inputs), 1))
-    windows = _cached(cache / f"windows-{T}-{stride}.npy",
-                      lambda: _window_labels(proc, T, stride, progress))
     labels = np.array([[np.nan if v is None else v for v in truth.per_frame[pair_key(p)]]
                        for p in truth.delta_pairs], dtype=np.float32).T
+    if frames_only:
+        windows, segment_starts, segment_labels = np.zeros((0, 2)), np.zeros(0), np.zeros(0)
+    else:
+        windows = _cached(cache / f"windows-{T}-{stride}.npy",
+                          lambda: _window_labels(proc, T, stride, progress))
+        segment_starts = np.array([s.start for s in truth.segments])
+        segment_labels = truth.segment_labels()
     return ProcedureSamples(
         name=input_name(proc.path), inputs=inputs, travel=travel,
         view=view, scale=scale, frame_labels=labels,
         window_starts=windows[:, 0].astype(int), window_labels=windows[:, 1],
-        segment_starts=np.array([s.start for s in truth.segments], dtype=int),
-        segment_labels=truth.segment_labels())
+        segment_starts=segment_starts.astype(int), segment_labels=segment_labels)
 
 
 def true_depth(proc: Procedure) -> tuple[np.ndarray, np.ndarray]:

@@ -23,6 +23,7 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
+from hybrid.dataset import Procedure
 from hybrid.types import InputError
 from learned.calibration import cross_fitted, fit_table, identity_table
 from learned.checkpoint import file_tag
@@ -180,11 +181,12 @@ def train_segment_net(model: CoverageModel, samples: list[ProcedureSamples],
 
 
 def fit_model(samples: list[ProcedureSamples], config: CoverageConfig, log,
-              progress: bool = False, device: torch.device | str = "cpu") -> CoverageModel:
-    """Both stages on the given procedures, on `device`."""
+              progress: bool = False, device: torch.device | str = "cpu",
+              frame_samples: list[ProcedureSamples] = ()) -> CoverageModel:
+    """Both stages on the given procedures, on `device`; stage 1 also on frame_samples."""
     torch.manual_seed(config.seed)
     model = CoverageModel(config).to(device)
-    train_frame_net(model, samples, log, progress)
+    train_frame_net(model, [*samples, *frame_samples], log, progress)
     features = [model.frame_outputs(s.inputs, s.cues)[1] for s in samples]
     train_segment_net(model, samples, features, log, progress)
     return model
@@ -246,18 +248,37 @@ def evaluate(model: CoverageModel, samples: list[ProcedureSamples],
 
 
 def load_samples(data: list[Path], config: CoverageConfig, depth_checkpoint: Path,
-                 progress: bool = False, device: torch.device | str = "cpu"
-                 ) -> list[ProcedureSamples]:
+                 progress: bool = False, device: torch.device | str = "cpu",
+                 frames_only: bool = False) -> list[ProcedureSamples]:
     """Samples of every simulated procedure under the given paths (the depth network on
-    `device`)."""
+    `device`); frames_only: for the per-frame network alone (procedure_samples)."""
     paths = expand_inputs(data)
     depth_model = None
     if config.input_depth == "predicted" or config.travel_gap or \
             config.field_of_view == "predicted":
         depth_model = load_depth_model(depth_checkpoint, device=device)
     tag = file_tag(depth_checkpoint)
-    return [procedure_samples(p, config, depth_model, tag, progress)
+    return [procedure_samples(p, config, depth_model, tag, progress, frames_only)
             for p in tqdm(paths, desc="inputs and labels", disable=not progress)]
+
+
+def check_no_shared_colon(data: list[Path], frame_data: list[Path]) -> None:
+    """Refuse frame_data procedures drawn from the same seed, index and colon settings as one
+    of data's: the same colon (whatever the style or frame step), so a held-out procedure
+    would be seen in training."""
+    def colons(paths: list[Path]) -> dict[str, Path]:
+        keys = {}
+        for path in expand_inputs(paths):
+            meta = Procedure.open(path).meta
+            keys[json.dumps([meta["seed"], meta["index"], meta["config"]["colon"]],
+                            sort_keys=True)] = path
+        return keys
+
+    main, extra = colons(data), colons(frame_data)
+    if shared := sorted(main.keys() & extra.keys()):
+        raise InputError(f"{extra[shared[0]]} has the colon of {main[shared[0]]} (same seed, "
+                         f"index and colon settings; {len(shared)} such procedures): simulate "
+                         f"the per-frame procedures with another --seed")
 
 
 def recorded_config(record: dict) -> CoverageConfig:
@@ -295,9 +316,10 @@ def run_samples(run: Path, record: dict, config: CoverageConfig, progress: bool 
 
 def train_coverage(data: list[Path], out: Path, config: CoverageConfig,
                    depth_checkpoint: Path, progress: bool = True,
-                   device: torch.device | str = "cpu") -> Path:
+                   device: torch.device | str = "cpu", frame_data: list[Path] = ()) -> Path:
     """Cross-validate, then train on everything, on `device`; returns the final model's
-    path."""
+    path. The procedures under frame_data train the per-frame network of every model and are
+    never held out."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     record_path = out / "record.json"
@@ -306,13 +328,20 @@ def train_coverage(data: list[Path], out: Path, config: CoverageConfig,
         raise InputError(f"{out} holds a run with another config; resume it with the same "
                          f"options or use another --out")
     started = time.time()
+    if frame_data:
+        check_no_shared_colon(data, frame_data)
     samples = load_samples(data, config, depth_checkpoint, progress, device)
+    frame_samples = load_samples(frame_data, config, depth_checkpoint, progress, device,
+                                 frames_only=True) if frame_data else []
     if previous and (previous["procedures"] != [s.name for s in samples]
+                     or previous.get("frame_procedures", []) != [s.name for s in frame_samples]
                      or previous["depth_checkpoint"]["sha256_12"] != file_tag(depth_checkpoint)):
         raise InputError(f"{out} holds a run on other procedures or another depth model; use "
                          f"another --out")
     record = {"config": config.to_dict(), "data": [str(p) for p in data],
               "procedures": [s.name for s in samples],
+              "frame_data": [str(p) for p in frame_data],
+              "frame_procedures": [s.name for s in frame_samples],
               "depth_checkpoint": {"path": str(depth_checkpoint),
                                    "sha256_12": file_tag(depth_checkpoint)},
               "seconds": {**previous.get("seconds", {}),
@@ -332,7 +361,8 @@ def train_coverage(data: list[Path], out: Path, config: CoverageConfig,
             model = load_coverage_model(path, device=device)
         else:
             tic = time.time()
-            model = fit_model(train, config, lambda e, k=k: log(e, str(k)), progress, device)
+            model = fit_model(train, config, lambda e, k=k: log(e, str(k)), progress, device,
+                              frame_samples)
             model.save(path)
             record["seconds"][f"fold_{k}"] = round(time.time() - tic, 1)
         folds.append(fold_predictions(model, [samples[i] for i in held], progress))
@@ -362,7 +392,7 @@ def train_coverage(data: list[Path], out: Path, config: CoverageConfig,
         model = load_coverage_model(final, device=device)
     else:
         tic = time.time()
-        model = fit_model(samples, config, log, progress, device)
+        model = fit_model(samples, config, log, progress, device, frame_samples)
         record["seconds"]["final"] = round(time.time() - tic, 1)
     model.segment.calibration.copy_(torch.from_numpy(table))
     model.save(final)

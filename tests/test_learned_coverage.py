@@ -671,6 +671,80 @@ def test_chained_travel_input_of_a_simulated_procedure(two_procedures):
         relative[4:] @ relative[2:-2] @ relative[:-4], len(relative) + 2), atol=1e-6)
 
 
+@pytest.fixture(scope="module")
+def sparse_procedures(tmp_path_factory, sim_config) -> Path:
+    """Every 4th frame of procedure 0 of seed 11 (the colon of two_procedures' first) and of
+    seed 12; every 5th of seed 12's."""
+    from hybrid.sim.simulate import simulate_procedure
+
+    root = tmp_path_factory.mktemp("sparse")
+    simulate_procedure(root / "same-colon", 11, 0, replace(sim_config, frame_step=4))
+    simulate_procedure(root / "step4", 12, 0, replace(sim_config, frame_step=4))
+    simulate_procedure(root / "step5", 12, 0, replace(sim_config, frame_step=5))
+    return root
+
+
+def test_per_frame_samples_of_a_procedure_at_every_kth_frame(two_procedures, sparse_procedures):
+    """frames_only: the per-frame labels of the kept frames, the travel over the same time
+    (a gap of 8 / 4 frames), no windows; a step that does not divide the gap is refused."""
+    torch.manual_seed(0)
+    depth_model = DepthModel(TINY).eval()
+    config = replace(SMALL, travel_gap=8, travel_hops=2)
+    path = sparse_procedures / "same-colon" / "proc_0000"
+    samples = procedure_samples(path, config, depth_model, "tiny", frames_only=True)
+    full = procedure_samples(two_procedures / "proc_0000", replace(config, travel_hops=0),
+                             depth_model, "tiny")
+    np.testing.assert_array_equal(samples.frame_labels, full.frame_labels[::4])
+    relative = np.load(path / "cache" / "relative-tiny-2.npy")
+    assert len(relative) == 10 - 2
+    np.testing.assert_allclose(samples.travel, np.concatenate(
+        [travel_features(relative, 10), travel_features(relative[2:] @ relative[:-2], 10)],
+        axis=1), atol=1e-6)
+    assert len(samples.inputs) == 10
+    assert samples.window_starts.size == samples.segment_starts.size == 0
+    with pytest.raises(InputError, match=r"7.5 fps, the coverage networks train on 30 fps"):
+        procedure_samples(path, config, depth_model, "tiny")
+    with pytest.raises(InputError, match=r"6 fps; .*divides the travel gap of 8"):
+        procedure_samples(sparse_procedures / "step5" / "proc_0000", config, depth_model,
+                          "tiny", frames_only=True)
+
+
+def test_train_coverage_with_per_frame_procedures(tmp_path, two_procedures, sparse_procedures):
+    """--frame-data: stage 1 of every model also reads those frames; a procedure with the colon
+    of a training one is refused before anything is trained."""
+    depth = save_model(tmp_path / "depth.safetensors", DepthModel(TINY), TINY.to_dict())
+    sets = ["segment_frames=20", "segment_stride=5", "frame_epochs=1", "segment_epochs=1",
+            "frame_batch=4", "travel_hops=2"]
+    args = ["train-coverage", "--data", str(two_procedures), "--folds", "0",
+            "--depth-checkpoint", str(depth)] + [x for s in sets for x in ("--set", s)]
+    result = runner.invoke(app, args + ["--out", str(tmp_path / "leak"), "--frame-data",
+                                        str(sparse_procedures / "same-colon")])
+    assert_clean_error(result, str(sparse_procedures / "same-colon" / "proc_0000"),
+                       str(two_procedures / "proc_0000"), "same seed, index and colon")
+    assert not (tmp_path / "leak" / "model.safetensors").exists()
+    import json
+
+    steps = {}
+    for name, extra in (("plain", []), ("frames", ["--frame-data",
+                                                   str(sparse_procedures / "step4")])):
+        result = runner.invoke(app, args + ["--out", str(tmp_path / name)] + extra)
+        assert result.exit_code == 0, result.output
+        log = [json.loads(line) for line in (tmp_path / name / "train_log.jsonl").open()]
+        steps[name] = max(e["step"] for e in log if e["stage"] == 1)
+    record = json.loads((tmp_path / "frames" / "record.json").read_text())
+    assert record["frame_procedures"] == ["step4/proc_0000"]
+    assert record["procedures"] == [f"{two_procedures.name}/proc_{i:04d}" for i in (0, 1)]
+
+    def labelled(path: Path) -> int:  # frames with a per-frame label (stage 1 trains on them)
+        per_frame = Procedure.open(path).coverage.per_frame.values()
+        return sum(any(v is not None for v in frame) for frame in zip(*per_frame, strict=True))
+
+    plain = sum(labelled(p) for p in sorted(two_procedures.glob("proc_*")))
+    extra = labelled(sparse_procedures / "step4" / "proc_0000")
+    assert extra >= 4
+    assert (steps["plain"], steps["frames"]) == (plain // 4, (plain + extra) // 4)
+
+
 def test_eval_coverage_with_a_depth_checkpoint_as_model(tmp_path, two_procedures):
     depth = save_model(tmp_path / "depth.safetensors", DepthModel(TINY), TINY.to_dict())
     result = runner.invoke(app, ["eval-coverage", "--data", str(two_procedures), "--out",

@@ -104,6 +104,26 @@ def test_a_procedure_simulated_before_camera_seed_existed_resumes(tmp_path, simu
         simulate_procedure(tmp_path, 7, 0, replace(sim_config, camera_seed=1))
 
 
+def test_frame_step_keeps_every_kth_frame_with_its_truth(tmp_path, simulated, sim_config):
+    """frame_step k: the same withdrawal's every k-th frame, a camera at fps / k, segments of
+    segment_frames / k frames (the same time), and those frames' own per-frame truth."""
+    k = 4
+    sparse = simulate_procedure(tmp_path, 7, 0, replace(sim_config, frame_step=k))
+    full, part = Procedure.open(simulated), Procedure.open(sparse)
+    assert part.num_frames == 10 and part.meta["config"]["frame_step"] == k
+    np.testing.assert_array_equal(part.poses, full.poses[::k])
+    assert part.camera == replace(full.camera, fps=full.camera.fps / k)
+    assert np.array_equal(part.depth(3), full.depth(3 * k))  # depth has no noise
+    assert part.coverage.segment_frames == sim_config.segment_frames // k
+    assert part.coverage.per_frame.keys() == full.coverage.per_frame.keys()
+    for key, values in full.coverage.per_frame.items():
+        assert part.coverage.per_frame[key] == pytest.approx(values[::k], nan_ok=True), key
+    assert len(part.coverage.segments) == len(full.coverage.segments) == 2
+    for bad in (0, 3):  # not a divisor of the 20-frame segments
+        with pytest.raises(ValueError, match="frame_step must be a positive divisor"):
+            replace(sim_config, frame_step=bad)
+
+
 def test_meta_records_seed_and_config(simulated, sim_config):
     meta = json.loads((simulated / "meta.json").read_text())
     assert (meta["seed"], meta["index"], meta["num_frames"]) == (7, 0, 40)

@@ -56,6 +56,11 @@ class SimConfig:
     the field of view (docs/depth.md, "Cameras shared by the styles")."""
     segment_frames: int = 300
     """Frames per coverage segment."""
+    frame_step: int | None = None
+    """Keep every frame_step-th frame of the withdrawal only: a video at fps / frame_step, with
+    segments of segment_frames / frame_step frames (the same 10 s), rendered that many times
+    faster. None: every frame. Cheap procedures for the per-frame coverage network, whose
+    labels are per frame (docs/coverage.md, "Sparse procedures for the per-frame network")."""
 
     def __post_init__(self) -> None:
         if self.preset not in PRESET_IMAGE_SIZE:
@@ -68,6 +73,10 @@ class SimConfig:
                              f"{self.trajectory.end_margin_cm:g} cm before the rectum)")
         if self.trajectory.max_frames is not None and self.trajectory.max_frames < 1:
             raise ValueError("max_frames must be at least 1")
+        if self.frame_step is not None and (self.frame_step < 1
+                                            or self.segment_frames % self.frame_step):
+            raise ValueError(f"frame_step must be a positive divisor of the {self.segment_frames}"
+                             f"-frame segments, got {self.frame_step}")
 
 
 def procedure_name(index: int) -> str:
@@ -127,7 +136,9 @@ def simulate_procedure(out_dir: Path, seed: int, index: int, config: SimConfig,
     (work / "depth").mkdir()
 
     scene = draw_scene(config, seed, index)
-    colon, camera, poses = scene.colon, scene.camera, scene.poses
+    step = config.frame_step or 1
+    colon, poses = scene.colon, scene.poses[::step]
+    camera = replace(scene.camera, fps=scene.camera.fps / step)
     for i in tqdm(range(len(poses)), desc=f"render {final.name}", unit="frame",
                   disable=not progress, leave=False):
         rgb, depth = scene.renderer.render(poses[i], scene.rng)
@@ -142,7 +153,7 @@ def simulate_procedure(out_dir: Path, seed: int, index: int, config: SimConfig,
     # Ground truth from the files just written, so `c2d2 coverage` on them gives the same.
     coverage = compute_coverage(SurfaceMesh.load(work / "colon.ply"),
                                 Lumen(np.load(work / "lumen.npy")), poses, camera,
-                                segment_frames=config.segment_frames, progress=progress)
+                                segment_frames=config.segment_frames // step, progress=progress)
     coverage.save(work / "coverage.json")
     meta = {"seed": seed, "index": index, "c2d2_version": __version__,
             "num_frames": len(poses), "config": asdict(config)}
@@ -191,8 +202,10 @@ def simulate_dataset(out_dir: Path, procedures: int, seed: int, config: SimConfi
 
 
 def with_overrides(config: SimConfig, length_cm: float | None = None,
-                   max_frames: int | None = None) -> SimConfig:
-    """The config with a different colon length or frame cap."""
+                   max_frames: int | None = None, frame_step: int | None = None) -> SimConfig:
+    """The config with a different colon length, frame cap or frame step."""
+    if frame_step is not None:
+        config = replace(config, frame_step=frame_step)
     if length_cm is not None:
         config = replace(config, colon=replace(config.colon, length_cm=length_cm))
     if max_frames is not None:
