@@ -92,20 +92,22 @@ def main() -> None:
     if args.out.is_file():
         trained_on = json.loads(sidecar.read_text())["procedures"] if sidecar.is_file() else None
         if trained_on != names:
-            raise SystemExit(f"error: {args.out} was not trained on these --train procedures; "
-                             f"remove it or choose another --out")
+            raise SystemExit(f"error: {args.out} was not trained on these procedures; remove "
+                             f"it or choose another --out")
         model = load_coverage_model(args.out)
     else:
         train = [samples[i] for i in fold_training] + load_samples(paths, config, depth,
                                                                    progress=True)
-        frames = load_samples(frame_paths, config, depth, progress=True, frames_only=True)
+        frames = (load_samples(frame_paths, config, depth, progress=True, frames_only=True)
+                  if frame_paths else [])
         tic = time.time()
         model = fit_model(train, config, lambda entry: None, progress=True, frame_samples=frames)
         model.save(args.out)
         sidecar.write_text(json.dumps({"procedures": names}, indent=1) + "\n")
+        alone = (f" and {len(frames)} for the per-frame network alone "
+                 f"({sum(len(s.inputs) for s in frames)} frames)" if frames else "")
         print(f"fitted on {len(train)} procedures ({sum(len(s.inputs) for s in train)} "
-              f"frames) and {len(frames)} for the per-frame network alone "
-              f"({sum(len(s.inputs) for s in frames)} frames) in {time.time() - tic:.0f} s")
+              f"frames){alone} in {time.time() - tic:.0f} s")
     fold_models = {k: load_coverage_model(args.run / f"fold-{k}.safetensors")
                    for k in (range(len(folds)) if args.fold is None else [args.fold])}
     ours, theirs = Predictions(), Predictions()
@@ -114,9 +116,10 @@ def main() -> None:
         evaluate(fold_model, held, theirs)
         evaluate(model, held, ours)
     which = "all folds" if args.fold is None else f"fold {args.fold}"
-    ours_name = "trained on --train" + (f" + fold {args.fold}'s training"
-                                        if args.plus_fold_training else "") + (
-        " + --frame-train" if frame_paths else "")
+    ours_name = "trained on " + " + ".join(
+        part for part, given in (("--train", paths),
+                                 (f"fold {args.fold}'s training", args.plus_fold_training),
+                                 ("per-frame procedures", frame_paths)) if given)
     rows = {f"the run's fold models, {which}": coverage_metrics(theirs),
             f"{ours_name}, {which}": coverage_metrics(ours)}
     if args.data:

@@ -85,7 +85,8 @@ def simulate(
     frame_step: Annotated[int | None, typer.Option(
         min=1, help="Keep every N-th frame of each withdrawal only (a video at 30 / N fps; N "
                     "divides the 300-frame segments): cheap procedures for the per-frame "
-                    "coverage network (train-coverage --frame-data).")] = None,
+                    "coverage network (train-coverage --frame-data, where N must also divide "
+                    "the travel gap of 8 frames: 2 or 4).")] = None,
 ):
     """Simulate procedures with rendered RGB, depth, poses and exact ground-truth coverage."""
     from hybrid.sim.simulate import SimConfig, simulate_dataset, with_overrides

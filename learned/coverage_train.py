@@ -270,8 +270,8 @@ def check_no_shared_colon(data: list[Path], frame_data: list[Path]) -> None:
         keys = {}
         for path in expand_inputs(paths):
             meta = Procedure.open(path).meta
-            keys[json.dumps([meta["seed"], meta["index"], meta["config"]["colon"]],
-                            sort_keys=True)] = path
+            keys[json.dumps([meta.get("seed"), meta.get("index"),
+                             meta.get("config", {}).get("colon")], sort_keys=True)] = path
         return keys
 
     main, extra = colons(data), colons(frame_data)

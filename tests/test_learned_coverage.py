@@ -710,39 +710,48 @@ def test_per_frame_samples_of_a_procedure_at_every_kth_frame(two_procedures, spa
 
 
 def test_train_coverage_with_per_frame_procedures(tmp_path, two_procedures, sparse_procedures):
-    """--frame-data: stage 1 of every model also reads those frames; a procedure with the colon
-    of a training one is refused before anything is trained."""
+    """--frame-data: stage 1 of every model (each fold's and the final) also reads those
+    frames; a procedure with the colon of a training one is refused before anything is
+    trained, and so is a resume with other per-frame procedures."""
     depth = save_model(tmp_path / "depth.safetensors", DepthModel(TINY), TINY.to_dict())
     sets = ["segment_frames=20", "segment_stride=5", "frame_epochs=1", "segment_epochs=1",
             "frame_batch=4", "travel_hops=2"]
-    args = ["train-coverage", "--data", str(two_procedures), "--folds", "0",
+    args = ["train-coverage", "--data", str(two_procedures), "--folds", "2",
             "--depth-checkpoint", str(depth)] + [x for s in sets for x in ("--set", s)]
+    frame_data = ["--frame-data", str(sparse_procedures / "step4")]
     result = runner.invoke(app, args + ["--out", str(tmp_path / "leak"), "--frame-data",
                                         str(sparse_procedures / "same-colon")])
     assert_clean_error(result, str(sparse_procedures / "same-colon" / "proc_0000"),
                        str(two_procedures / "proc_0000"), "same seed, index and colon")
-    assert not (tmp_path / "leak" / "model.safetensors").exists()
+    assert not (tmp_path / "leak" / "fold-0.safetensors").exists()
     import json
-
-    steps = {}
-    for name, extra in (("plain", []), ("frames", ["--frame-data",
-                                                   str(sparse_procedures / "step4")])):
-        result = runner.invoke(app, args + ["--out", str(tmp_path / name)] + extra)
-        assert result.exit_code == 0, result.output
-        log = [json.loads(line) for line in (tmp_path / name / "train_log.jsonl").open()]
-        steps[name] = max(e["step"] for e in log if e["stage"] == 1)
-    record = json.loads((tmp_path / "frames" / "record.json").read_text())
-    assert record["frame_procedures"] == ["step4/proc_0000"]
-    assert record["procedures"] == [f"{two_procedures.name}/proc_{i:04d}" for i in (0, 1)]
 
     def labelled(path: Path) -> int:  # frames with a per-frame label (stage 1 trains on them)
         per_frame = Procedure.open(path).coverage.per_frame.values()
         return sum(any(v is not None for v in frame) for frame in zip(*per_frame, strict=True))
 
-    plain = sum(labelled(p) for p in sorted(two_procedures.glob("proc_*")))
+    steps = {}
+    for name, extra in (("plain", []), ("frames", frame_data)):
+        result = runner.invoke(app, args + ["--out", str(tmp_path / name)] + extra)
+        assert result.exit_code == 0, result.output
+        log = [json.loads(line) for line in (tmp_path / name / "train_log.jsonl").open()]
+        steps[name] = {fold: max(e["step"] for e in log if e["stage"] == 1 and e["fold"] == fold)
+                       for fold in ("0", "1", "all")}
+    record = json.loads((tmp_path / "frames" / "record.json").read_text())
+    assert record["frame_procedures"] == ["step4/proc_0000"]
+    assert record["procedures"] == [f"{two_procedures.name}/proc_{i:04d}" for i in (0, 1)]
     extra = labelled(sparse_procedures / "step4" / "proc_0000")
     assert extra >= 4
-    assert (steps["plain"], steps["frames"]) == (plain // 4, (plain + extra) // 4)
+    for fold, held in enumerate(fold_split(2, 2, 0)):  # each fold model trains on the other
+        plain = labelled(two_procedures / f"proc_{1 - held[0]:04d}")
+        assert (steps["plain"][str(fold)], steps["frames"][str(fold)]) == (
+            plain // 4, (plain + extra) // 4), fold
+    plain = sum(labelled(p) for p in sorted(two_procedures.glob("proc_*")))
+    assert (steps["plain"]["all"], steps["frames"]["all"]) == (plain // 4, (plain + extra) // 4)
+    result = runner.invoke(app, args + ["--out", str(tmp_path / "frames")])  # without them
+    assert result.exit_code != 0 and "Traceback" not in result.output, result.output
+    error = result.stderr[result.stderr.index("error: "):]  # after the progress bar
+    assert f"{tmp_path / 'frames'} holds a run on other procedures" in error, error
 
 
 def test_eval_coverage_with_a_depth_checkpoint_as_model(tmp_path, two_procedures):

@@ -58,9 +58,10 @@ class SimConfig:
     """Frames per coverage segment."""
     frame_step: int | None = None
     """Keep every frame_step-th frame of the withdrawal only: a video at fps / frame_step, with
-    segments of segment_frames / frame_step frames (the same 10 s), rendered that many times
-    faster. None: every frame. Cheap procedures for the per-frame coverage network, whose
-    labels are per frame (docs/coverage.md, "Sparse procedures for the per-frame network")."""
+    segments of segment_frames / frame_step frames (the same 10 s) and that many times fewer
+    frames to render and label. None: every frame. Cheap procedures for the per-frame coverage
+    network, whose labels are per frame (docs/coverage.md, "Sparse procedures for the
+    per-frame network")."""
 
     def __post_init__(self) -> None:
         if self.preset not in PRESET_IMAGE_SIZE:
@@ -204,8 +205,8 @@ def simulate_dataset(out_dir: Path, procedures: int, seed: int, config: SimConfi
 def with_overrides(config: SimConfig, length_cm: float | None = None,
                    max_frames: int | None = None, frame_step: int | None = None) -> SimConfig:
     """The config with a different colon length, frame cap or frame step."""
-    if frame_step is not None:
-        config = replace(config, frame_step=frame_step)
+    if frame_step is not None:  # 1 is every frame: the default, so that folders resume
+        config = replace(config, frame_step=None if frame_step == 1 else frame_step)
     if length_cm is not None:
         config = replace(config, colon=replace(config.colon, length_cm=length_cm))
     if max_frames is not None:
