@@ -1,12 +1,12 @@
 """Train the coverage networks on other procedures and test them on a run's held-out folds.
 
-Fits both stages (the run's config) on the procedures under --train, then prints their
-metrics on the procedures that fold --fold of `c2d2 train-coverage` run --run held out,
-beside that fold model's; without --fold, on every fold's held-out procedures pooled, beside
-the run's fold models. Both are uncalibrated (learned.calibration; the run's `cv_metrics.json`
-gives them as its `uncalibrated` entry). A like-for-like test of a change of training data
-(say, more and shorter procedures for as many frames), which the run's own cross-validation
-cannot make.
+Fits both stages (the run's config, changed by any --set) on the procedures under --train, then
+prints their metrics on the procedures that fold --fold of `c2d2 train-coverage` run --run held
+out, beside that fold model's; without --fold, on every fold's held-out procedures pooled,
+beside the run's fold models. Both are uncalibrated (learned.calibration; the run's
+`cv_metrics.json` gives them as its `uncalibrated` entry). A like-for-like test of a change of
+training data (say, more and shorter procedures for as many frames), which the run's own
+cross-validation cannot make.
 With --fold and --plus-fold-training, the model is fitted on that fold's training procedures
 as well as on --train: the fold model's data and more, a point on the learning curve. With
 --data, both models are also scored on those procedures (which neither saw).
@@ -33,8 +33,10 @@ from __future__ import annotations
 import argparse
 import json
 import time
+from dataclasses import replace
 from pathlib import Path
 
+from learned.config import parse_overrides
 from learned.coverage_eval import Predictions, coverage_metrics, format_table
 from learned.coverage_nets import load_coverage_model
 from learned.coverage_train import (
@@ -62,10 +64,17 @@ def main() -> None:
     parser.add_argument("--data", type=Path, action="append", default=[],
                         help="also score both on these procedures (repeat)")
     parser.add_argument("--out", type=Path, required=True, help="where to save the model")
+    parser.add_argument("--set", action="append", default=[], metavar="K=V",
+                        help="fit the new model with this CoverageConfig field changed "
+                             "(repeat), e.g. frame_epochs=7")
     args = parser.parse_args()
     if args.plus_fold_training and args.fold is None:
         parser.error("--plus-fold-training needs --fold")
     record, config, samples, folds = load_run(args.run, progress=True)
+    try:
+        fit_config = replace(config, **parse_overrides(args.set, config))
+    except ValueError as err:
+        parser.error(str(err))
     if args.fold is not None and not 0 <= args.fold < len(folds):
         raise SystemExit(f"error: --fold must be 0-{len(folds) - 1} for {args.run}")
     paths = [p for folder in args.train for p in expand_inputs([folder])[:args.count]]
@@ -84,7 +93,8 @@ def main() -> None:
         check_no_shared_colon([Path(p) for p in record["data"]] + paths + args.data,
                               run_frames + args.frame_train)
     frame_paths = expand_inputs(run_frames + args.frame_train)
-    names += [f"frames only: {input_name(p)}" for p in frame_paths]
+    names += [f"frames only: {input_name(p)}" for p in frame_paths] + [f"--set {item}"
+                                                                        for item in args.set]
     if not (paths or frame_paths or fold_training):
         parser.error("nothing to train on: give --train, --frame-train or --plus-fold-training")
     depth = Path(record["depth_checkpoint"]["path"])
@@ -101,7 +111,8 @@ def main() -> None:
         frames = (load_samples(frame_paths, config, depth, progress=True, frames_only=True)
                   if frame_paths else [])
         tic = time.time()
-        model = fit_model(train, config, lambda entry: None, progress=True, frame_samples=frames)
+        model = fit_model(train, fit_config, lambda entry: None, progress=True,
+                          frame_samples=frames)
         model.save(args.out)
         sidecar.write_text(json.dumps({"procedures": names}, indent=1) + "\n")
         alone = (f" and {len(frames)} for the per-frame network alone "
@@ -119,7 +130,8 @@ def main() -> None:
     ours_name = "trained on " + " + ".join(
         part for part, given in (("--train", paths),
                                  (f"fold {args.fold}'s training", args.plus_fold_training),
-                                 ("per-frame procedures", frame_paths)) if given)
+                                 ("per-frame procedures", frame_paths)) if given) + "".join(
+        f", {item}" for item in args.set)
     rows = {f"the run's fold models, {which}": coverage_metrics(theirs),
             f"{ours_name}, {which}": coverage_metrics(ours)}
     if args.data:
