@@ -79,8 +79,8 @@ def procedure_samples(path: Path, config: CoverageConfig, depth_model: DepthMode
     proc = Procedure.open(path)
     truth = proc.coverage
     T, stride = config.segment_frames, config.segment_stride
-    step = config.frame_rate / proc.camera.fps
-    if frames_only and not (step == round(step) >= 1 and config.travel_gap % round(step) == 0):
+    step = config.frame_rate / proc.camera.fps  # frames of the training rate per frame here
+    if frames_only and not (step.is_integer() and step >= 1 and config.travel_gap % step == 0):
         raise InputError(f"{proc.path}: {proc.camera.fps:g} fps; per-frame samples need "
                          f"{config.frame_rate:g} fps divided by a whole number that divides "
                          f"the travel gap of {config.travel_gap} frames")
