@@ -296,7 +296,7 @@ def compute_coverage(
 
     per_frame = {pair_key(p): [None] * n for p in delta_pairs}
     segments = []
-    seen_by_frame: dict[int, np.ndarray] = {}  # only frames of windows not yet finished
+    last_seen = np.full(len(mesh.vertices), -1)  # the last frame so far that saw each vertex
     for f in tqdm(range(n), desc="coverage", unit="frame", disable=not progress):
         a = np.searchsorted(sorted_ell, band_lo[f], side="left")
         b = np.searchsorted(sorted_ell, band_hi[f], side="right")
@@ -305,16 +305,13 @@ def compute_coverage(
         for d0, d1 in delta_pairs:
             per_frame[pair_key((d0, d1))][f] = coverage_of(seen, camera_ell[f] + d0,
                                                             camera_ell[f] + d1)
-        seen_by_frame[f] = seen
+        last_seen[seen] = f
         while len(segments) < len(windows) and windows[len(segments)][1] == f + 1:
             start, stop = windows[len(segments)]
-            union = np.unique(np.concatenate([seen_by_frame[k] for k in range(start, stop)]))
+            union = np.flatnonzero(last_seen >= start)  # seen by a frame of [start, f]
             e_min, e_max = camera_ell[start:stop].min(), camera_ell[start:stop].max()
             coverage = {pair_key((d0, d1)): coverage_of(union, e_min + d0, e_max + d1)
                         for d0, d1 in delta_pairs}
             segments.append(SegmentCoverage(len(segments), start, stop, float(e_min),
                                             float(e_max), coverage))
-        keep_from = windows[len(segments)][0] if len(segments) < len(windows) else f + 1
-        for k in [k for k in seen_by_frame if k < keep_from]:
-            del seen_by_frame[k]
     return CoverageResult(list(delta_pairs), segment_frames, per_frame, segments)
