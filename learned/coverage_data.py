@@ -139,8 +139,7 @@ def procedure_samples(path: Path, config: CoverageConfig, depth_model: DepthMode
     if frames_only:
         windows, segment_starts, segment_labels = np.zeros((0, 2)), np.zeros(0), np.zeros(0)
     else:
-        windows = _cached(cache / f"windows-{T}-{stride}.npy",
-                          lambda: _window_labels(proc, T, stride, progress))
+        windows = window_labels(proc, T, stride, progress)
         segment_starts = np.array([s.start for s in truth.segments])
         segment_labels = truth.segment_labels()
     return ProcedureSamples(
@@ -181,13 +180,19 @@ def _predicted_view(seq: FrameSequence, output: DepthOutput) -> np.ndarray:
                        seq.name)[0]
 
 
-def _window_labels(proc: Procedure, frames: int, stride: int, progress: bool) -> np.ndarray:
-    """(W, 2): start frame and default-pair coverage of every overlapping window."""
-    result = compute_coverage(proc.mesh(), Lumen(proc.lumen), proc.poses, proc.camera,
-                              frames, progress=progress, segment_stride=stride)
-    return np.array([[s.start, np.nan if s.coverage[pair_key(result.default_pair)] is None
-                      else s.coverage[pair_key(result.default_pair)]] for s in result.segments]
-                    ).reshape(-1, 2)
+def window_labels(proc: Procedure, frames: int, stride: int, progress: bool = False
+                  ) -> np.ndarray:
+    """(W, 2): start frame and default-pair coverage of every window of `frames` frames
+    starting every `stride`, from the exact ground truth (cached)."""
+
+    def compute() -> np.ndarray:
+        result = compute_coverage(proc.mesh(), Lumen(proc.lumen), proc.poses, proc.camera,
+                                  frames, progress=progress, segment_stride=stride)
+        key = pair_key(result.default_pair)
+        return np.array([[s.start, np.nan if s.coverage[key] is None else s.coverage[key]]
+                         for s in result.segments]).reshape(-1, 2)
+
+    return _cached(proc.path / "cache" / f"windows-{frames}-{stride}.npy", compute)
 
 
 def _cached(path: Path, make) -> np.ndarray:

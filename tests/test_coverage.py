@@ -235,20 +235,23 @@ def test_adding_frames_never_lowers_segment_coverage(folded_colon_and_poses):
         assert both.coverage[key] > base.coverage[key]
 
 
-def test_overlapping_windows_equal_each_window_alone(folded_colon_and_poses):
-    """A window of an overlapping run covers what its own frames saw, no more (none of the
-    earlier windows' frames) and no less: the same as the window given alone."""
+@pytest.mark.parametrize("stride, starts", [(7, [0, 7, 14, 21, 28, 35]), (25, [0, 25])])
+def test_overlapping_windows_equal_each_window_alone(folded_colon_and_poses, stride, starts):
+    """A window of a run of windows every `stride` frames covers what its own frames saw, no
+    more (none of the earlier frames) and no less: the same as the window given alone."""
     colon, poses = folded_colon_and_poses
     mesh, lumen = _surface(colon), Lumen(colon.centerline)
     # turned views in the second half, so that the windows differ
     poses = np.concatenate([poses[:30], _turned(poses[30:], 60.0)])
-    run = compute_coverage(mesh, lumen, poses, CAMERA_90, segment_frames=20, segment_stride=7)
-    assert [s.start for s in run.segments] == [0, 7, 14, 21, 28, 35]
+    run = compute_coverage(mesh, lumen, poses, CAMERA_90, segment_frames=20,
+                           segment_stride=stride)
+    assert [s.start for s in run.segments] == starts
+    key = pair_key(DELTA_PAIRS_CM[0])
     for segment in run.segments:
         (alone,) = compute_coverage(mesh, lumen, poses[segment.start:segment.stop], CAMERA_90,
                                     segment_frames=20).segments
         assert segment.coverage == alone.coverage
-    assert len({s.coverage[pair_key(DELTA_PAIRS_CM[0])] for s in run.segments}) > 3
+    assert len({s.coverage[key] for s in run.segments}) == len(starts)
 
 
 def test_all_per_frame_values_in_unit_interval(folded_colon_and_poses):
