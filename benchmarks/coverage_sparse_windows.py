@@ -31,15 +31,16 @@ from tqdm import tqdm
 from hybrid.dataset import Procedure
 from learned.coverage_data import window_labels
 from learned.coverage_eval import coverage_metrics, format_table
-from learned.coverage_nets import CoverageModel, load_coverage_model
+from learned.coverage_nets import CoverageModel, load_coverage_model, resample_features
 from learned.coverage_train import evaluate, load_run, load_samples, train_segment_net
 from learned.train import expand_inputs
 
 
-def upsampled(features: np.ndarray, step: int, how: str) -> np.ndarray:
-    """(N * step, ...) features of every k-th frame brought to the full frame rate."""
+def upsampled(features: np.ndarray, step: int, window: int, how: str) -> np.ndarray:
+    """(N * step, ...) features of every step-th frame brought to the full frame rate: as
+    `c2d2 run` resamples them (nearest frame) or linearly between kept frames."""
     if how == "nearest":
-        return np.repeat(features, step, axis=0)
+        return resample_features(features, window // step, window)
     t = np.arange(len(features) * step) / step
     i = np.minimum(t.astype(int), len(features) - 2)
     w = np.minimum(t - i, 1.0)[:, None, None]
@@ -90,8 +91,8 @@ def main() -> None:
     sparse_features = [kept.frame_outputs(s.inputs, s.cues)[1] for s in windowed]
     variants = [("fold windows", train, features)] + [
         (f"+ sparse windows ({how})", train + windowed,
-         features + [upsampled(f, step, how) for f, step in zip(sparse_features, steps,
-                                                                 strict=True)])
+         features + [upsampled(f, step, T, how)
+                    for f, step in zip(sparse_features, steps, strict=True)])
         for how in args.upsample]
     print("training windows: fold {}, sparse {}".format(
         *(sum(int(np.isfinite(s.window_labels).sum()) for s in ss) for ss in (train, windowed))))
