@@ -87,16 +87,25 @@ def simulate(
                     "divides the 300-frame segments): cheap procedures for the per-frame "
                     "coverage network (train-coverage --frame-data, where N must also divide "
                     "the travel gap of 8 frames: 2 or 4).")] = None,
+    window_stride: Annotated[int | None, typer.Option(
+        min=0, help="Also label the windows of a segment's length that start every N frames, "
+                    "in the same pass as the ground truth: train-coverage's training windows, "
+                    "which it would otherwise label itself. Default: 30, the coverage "
+                    "networks' stride; none with --frame-step. 0: none.")] = None,
 ):
     """Simulate procedures with rendered RGB, depth, poses and exact ground-truth coverage."""
     from hybrid.sim.simulate import SimConfig, simulate_dataset, with_overrides
+    from learned.config import CoverageConfig
 
+    if window_stride is None:
+        window_stride = 0 if frame_step and frame_step > 1 else CoverageConfig().segment_stride
     try:
         config = with_overrides(SimConfig(preset=preset, style=style, camera_seed=camera_seed),
                                 length_cm, max_frames, frame_step)
     except ValueError as err:
         raise InputError(str(err)) from err
-    for path in simulate_dataset(out, procedures, seed, config, workers, first_index):
+    for path in simulate_dataset(out, procedures, seed, config, workers, first_index,
+                                 window_stride or None):
         typer.echo(str(path))
 
 

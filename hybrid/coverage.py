@@ -11,7 +11,7 @@ closed, vertices in any order.
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -184,6 +184,19 @@ class CoverageResult:
         key = pair_key(pair or self.default_pair)
         return np.array([np.nan if s.coverage[key] is None else s.coverage[key]
                          for s in self.segments])
+
+    def window_table(self) -> np.ndarray:
+        """(S, 2) float64: each segment's start frame and default-pair coverage (NaN where
+        undefined); of overlapping windows, the segment network's training labels."""
+        starts = np.array([s.start for s in self.segments], dtype=np.float64)
+        return np.column_stack([starts, self.segment_labels()]).reshape(-1, 2)
+
+    def back_to_back(self) -> CoverageResult:
+        """The segments starting every segment_frames frames, numbered from 0. Of overlapping
+        windows whose stride divides segment_frames, that is what a run without a stride gives
+        (each window's coverage depends on its own frames only)."""
+        kept = [s for s in self.segments if s.start % self.segment_frames == 0]
+        return replace(self, segments=[replace(s, index=i) for i, s in enumerate(kept)])
 
 
 class VisibilityOracle:

@@ -10,6 +10,8 @@ One folder per procedure:
     lumen.npy          (M, 3) float64 centerline from the rectum end, cm
     coverage.json      ground-truth coverage (see hybrid.coverage.CoverageResult.to_json)
     meta.json          seed, style, preset, configs and package version
+    cache/             derived arrays, each rebuilt when missing (window labels, the
+                       coverage networks' inputs)
 
 A folder is written under a temporary name and renamed when complete, so a folder with the
 final name is always whole.
@@ -32,6 +34,12 @@ DEPTH_UNIT_CM = 0.002
 """One step of the 16-bit depth PNGs: 20 µm, so the largest depth is 131 cm."""
 REQUIRED_FILES = ("camera.json", "poses.npy", "colon.ply", "lumen.npy", "coverage.json",
                   "meta.json")
+
+
+def window_labels_path(folder: Path, frames: int, stride: int) -> Path:
+    """Where a procedure keeps the labels of its windows of `frames` frames every `stride`
+    (CoverageResult.window_table): written by the simulator, or computed when first needed."""
+    return Path(folder) / "cache" / f"windows-{frames}-{stride}.npy"
 
 
 def frame_name(index: int) -> str:

@@ -7,8 +7,8 @@ withdrawals) and, if asked for, the field of view of the motion network's intrin
 simulator's camera (learned.view) and each frame's depth scale against the procedure's
 (`relative_scale`, from the per-frame medians of the same depth). Labels: the
 per-frame coverage of coverage.json for the three Δ pairs, the default-pair coverage of
-overlapping training windows (computed here with the exact ground truth) and of the
-back-to-back segments of coverage.json (used for evaluation).
+overlapping training windows (the exact ground truth: written by the simulator, or computed
+here) and of the back-to-back segments of coverage.json (used for evaluation).
 
 Cache files sit in the procedure's `cache/` folder, named by what they depend on, and are
 written atomically.
@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from hybrid.coverage import Lumen, compute_coverage, pair_key
-from hybrid.dataset import Procedure
+from hybrid.dataset import Procedure, window_labels_path
 from hybrid.types import InputError
 from learned.config import CoverageConfig
 from learned.coverage_nets import normalise_depth, region_medians, relative_scale
@@ -183,16 +183,11 @@ def _predicted_view(seq: FrameSequence, output: DepthOutput) -> np.ndarray:
 def window_labels(proc: Procedure, frames: int, stride: int, progress: bool = False
                   ) -> np.ndarray:
     """(W, 2): start frame and default-pair coverage of every window of `frames` frames
-    starting every `stride`, from the exact ground truth (cached)."""
-
-    def compute() -> np.ndarray:
-        result = compute_coverage(proc.mesh(), Lumen(proc.lumen), proc.poses, proc.camera,
-                                  frames, progress=progress, segment_stride=stride)
-        key = pair_key(result.default_pair)
-        return np.array([[s.start, np.nan if s.coverage[key] is None else s.coverage[key]]
-                         for s in result.segments]).reshape(-1, 2)
-
-    return _cached(proc.path / "cache" / f"windows-{frames}-{stride}.npy", compute)
+    starting every `stride`, from the exact ground truth (cached; `c2d2 simulate` writes
+    them for the coverage networks' windows)."""
+    return _cached(window_labels_path(proc.path, frames, stride), lambda: compute_coverage(
+        proc.mesh(), Lumen(proc.lumen), proc.poses, proc.camera, frames, progress=progress,
+        segment_stride=stride).window_table())
 
 
 def _cached(path: Path, make) -> np.ndarray:

@@ -244,6 +244,22 @@ def test_simulate_a_colon_too_short_to_withdraw(tmp_path, length):
     assert not any(tmp_path.iterdir())  # nothing half-written
 
 
+def test_simulate_labels_the_coverage_networks_windows(tmp_path):
+    """By default the training windows (every 30 of 300 frames) are labelled with the truth,
+    not for sparse procedures; a stride that does not divide the segments is refused."""
+    common = ["simulate", "--length-cm", "14", "--max-frames", "24"]
+    result = runner.invoke(app, [*common, "--out", str(tmp_path / "full")])
+    assert result.exit_code == 0, result.output
+    (cached,) = (tmp_path / "full" / "proc_0000" / "cache").iterdir()
+    assert cached.name == "windows-300-30.npy" and np.load(cached).shape == (0, 2)
+    result = runner.invoke(app, [*common, "--out", str(tmp_path / "sparse"), "--frame-step", "4"])
+    assert result.exit_code == 0, result.output
+    assert not (tmp_path / "sparse" / "proc_0000" / "cache").exists()
+    result = runner.invoke(app, [*common, "--out", str(tmp_path / "bad"), "--window-stride", "7"])
+    assert result.exit_code == 2 and "window stride must be a positive divisor" in result.stderr
+    assert not (tmp_path / "bad").exists()
+
+
 def test_demo_prints_the_truth_and_both_branches(tmp_path):
     """`c2d2 demo`, the README's main command, on its shortest video: each printed row holds
     the simulated procedure's true coverage and the run's learned and geometric values, the

@@ -254,6 +254,24 @@ def test_overlapping_windows_equal_each_window_alone(folded_colon_and_poses, str
     assert len({s.coverage[key] for s in run.segments}) == len(starts)
 
 
+def test_windows_hold_the_back_to_back_segments_exactly(folded_colon_and_poses):
+    """One pass with overlapping windows gives, bit for bit, the per-frame values and the
+    back-to-back segments of a pass without them (the simulator labels both in one pass),
+    and its window table lists every window's start and default-pair coverage."""
+    colon, poses = folded_colon_and_poses
+    mesh, lumen = _surface(colon), Lumen(colon.centerline)
+    plain = compute_coverage(mesh, lumen, poses, CAMERA_90, segment_frames=20)
+    windows = compute_coverage(mesh, lumen, poses, CAMERA_90, segment_frames=20,
+                               segment_stride=5)
+    assert len(windows.segments) == 9 and len(plain.segments) == 3
+    assert windows.back_to_back().to_json() == plain.to_json()
+    table = windows.window_table()
+    assert table.shape == (9, 2)
+    np.testing.assert_array_equal(table[:, 0], np.arange(0, 41, 5))
+    np.testing.assert_array_equal(table[:, 1], windows.segment_labels())
+    assert len(set(table[:, 1])) > 3  # the windows between the segments are their own
+
+
 def test_all_per_frame_values_in_unit_interval(folded_colon_and_poses):
     colon, poses = folded_colon_and_poses
     result = compute_coverage(_surface(colon), Lumen(colon.centerline), poses,

@@ -12,7 +12,7 @@ import pytest
 from conftest import make_cylinder
 
 from hybrid.coverage import Lumen
-from hybrid.dataset import Procedure
+from hybrid.dataset import Procedure, window_labels_path
 from hybrid.sim.appearance import TEXELS_PER_CM, get_style
 from hybrid.sim.colon import Colon, ColonConfig, make_colon
 from hybrid.sim.render import ColonRenderer
@@ -122,6 +122,26 @@ def test_frame_step_keeps_every_kth_frame_with_its_truth(tmp_path, simulated, si
     for bad in (0, 3):  # not a divisor of the 20-frame segments
         with pytest.raises(ValueError, match="frame_step must be a positive divisor"):
             replace(sim_config, frame_step=bad)
+
+
+def test_window_labels_come_with_the_truth(tmp_path, simulated, sim_config):
+    """With a window stride the simulator writes the training windows' labels in the same
+    pass: coverage.json stays byte for byte what it is without, and the labels are what the
+    coverage networks' data would compute from the written files."""
+    from learned.coverage_data import window_labels
+
+    folder = simulate_procedure(tmp_path, 7, 0, sim_config, window_stride=5)
+    assert (folder / "coverage.json").read_bytes() == (simulated / "coverage.json").read_bytes()
+    written = np.load(window_labels_path(folder, 20, 5))
+    assert written.shape == (5, 2)
+    plain = shutil.copytree(simulated, tmp_path / "plain")  # labelled without windows
+    computed = window_labels(Procedure.open(plain), 20, 5)
+    assert window_labels_path(plain, 20, 5).is_file()
+    np.testing.assert_array_equal(written, computed)
+    for bad in (0, 3, 40):  # not a divisor of the 20-frame segments
+        with pytest.raises(InputError, match="window stride must be a positive divisor"):
+            simulate_procedure(tmp_path / "bad", 7, 0, sim_config, window_stride=bad)
+    assert not (tmp_path / "bad").exists()
 
 
 def test_meta_records_seed_and_config(simulated, sim_config):

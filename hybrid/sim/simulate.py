@@ -12,6 +12,7 @@ import logging
 import shutil
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, dataclass, field, replace
+from functools import partial
 from multiprocessing import get_context
 from pathlib import Path
 
@@ -21,7 +22,13 @@ from tqdm import tqdm
 
 from hybrid import __version__
 from hybrid.coverage import Lumen, SurfaceMesh, compute_coverage
-from hybrid.dataset import REQUIRED_FILES, frame_name, write_depth, write_rgb
+from hybrid.dataset import (
+    REQUIRED_FILES,
+    frame_name,
+    window_labels_path,
+    write_depth,
+    write_rgb,
+)
 from hybrid.sim.appearance import get_style, make_texture
 from hybrid.sim.colon import Colon, ColonConfig, make_colon
 from hybrid.sim.render import ColonRenderer
@@ -124,9 +131,15 @@ def draw_scene(config: SimConfig, seed: int, index: int) -> Scene:
 
 
 def simulate_procedure(out_dir: Path, seed: int, index: int, config: SimConfig,
-                       progress: bool = False) -> Path:
+                       progress: bool = False, window_stride: int | None = None) -> Path:
     """Write procedure `index` of `seed` under out_dir; skip it if already complete, refuse
-    one that was simulated with another seed or config."""
+    one that was simulated with another seed or config.
+
+    window_stride: also label the windows of a segment's length that start every this many
+    frames (of the written video), in the same pass as coverage.json (cache/, see
+    hybrid.dataset.window_labels_path): the coverage networks' training windows.
+    """
+    segment_frames = _window_check(config, window_stride)
     final = Path(out_dir) / procedure_name(index)
     if _complete(final, seed, index, config):
         log.info("%s exists, skipped", final)
@@ -154,8 +167,13 @@ def simulate_procedure(out_dir: Path, seed: int, index: int, config: SimConfig,
     # Ground truth from the files just written, so `c2d2 coverage` on them gives the same.
     coverage = compute_coverage(SurfaceMesh.load(work / "colon.ply"),
                                 Lumen(np.load(work / "lumen.npy")), poses, camera,
-                                segment_frames=config.segment_frames // step, progress=progress)
-    coverage.save(work / "coverage.json")
+                                segment_frames=segment_frames, progress=progress,
+                                segment_stride=window_stride)
+    coverage.back_to_back().save(work / "coverage.json")
+    if window_stride:
+        windows = window_labels_path(work, segment_frames, window_stride)
+        windows.parent.mkdir()
+        np.save(windows, coverage.window_table())
     meta = {"seed": seed, "index": index, "c2d2_version": __version__,
             "num_frames": len(poses), "config": asdict(config)}
     (work / "meta.json").write_text(json.dumps(meta, indent=1) + "\n")
@@ -184,22 +202,37 @@ def _complete(folder: Path, seed: int, index: int, config: SimConfig) -> bool:
     return True
 
 
-def _simulate_one(args: tuple[Path, int, int, SimConfig]) -> Path:
-    return simulate_procedure(*args)
+def _window_check(config: SimConfig, window_stride: int | None) -> int:
+    """The written video's segment length in frames, once window_stride is known to divide it."""
+    segment_frames = config.segment_frames // (config.frame_step or 1)
+    if window_stride is not None and not (window_stride >= 1
+                                          and segment_frames % window_stride == 0):
+        raise InputError(f"the window stride must be a positive divisor of the "
+                         f"{segment_frames}-frame segments, got {window_stride}")
+    return segment_frames
+
+
+def _simulate_one(args: tuple[Path, int, int, SimConfig], window_stride: int | None) -> Path:
+    return simulate_procedure(*args, window_stride=window_stride)
 
 
 def simulate_dataset(out_dir: Path, procedures: int, seed: int, config: SimConfig,
-                     workers: int = 1, first_index: int = 0) -> list[Path]:
-    """Simulate procedures first_index .. first_index + procedures - 1 (resumable)."""
+                     workers: int = 1, first_index: int = 0,
+                     window_stride: int | None = None) -> list[Path]:
+    """Simulate procedures first_index .. first_index + procedures - 1 (resumable); with
+    window_stride, label overlapping windows too (simulate_procedure)."""
+    _window_check(config, window_stride)
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     jobs = [(out_dir, seed, first_index + k, config) for k in range(procedures)]
     for job in jobs:  # refuse a folder of other settings before rendering anything
         _complete(out_dir / procedure_name(job[2]), seed, job[2], config)
     if workers <= 1:
-        return [simulate_procedure(*job, progress=True) for job in tqdm(jobs, desc="procedures")]
+        return [simulate_procedure(*job, progress=True, window_stride=window_stride)
+                for job in tqdm(jobs, desc="procedures")]
     with ProcessPoolExecutor(workers, mp_context=get_context("spawn")) as pool:
-        return list(tqdm(pool.map(_simulate_one, jobs), total=len(jobs), desc="procedures"))
+        one = partial(_simulate_one, window_stride=window_stride)
+        return list(tqdm(pool.map(one, jobs), total=len(jobs), desc="procedures"))
 
 
 def with_overrides(config: SimConfig, length_cm: float | None = None,
