@@ -189,7 +189,7 @@ class CoverageResult:
         """(S, 2) float64: each segment's start frame and default-pair coverage (NaN where
         undefined); of overlapping windows, the segment network's training labels."""
         starts = np.array([s.start for s in self.segments], dtype=np.float64)
-        return np.column_stack([starts, self.segment_labels()]).reshape(-1, 2)
+        return np.column_stack([starts, self.segment_labels()])
 
     def back_to_back(self) -> CoverageResult:
         """The segments starting every segment_frames frames, numbered from 0. Of overlapping
