@@ -6,7 +6,9 @@ branch's MAE and bias also by its support (the share of the segment's expected w
 lumen fitted to the reconstruction: all of it, at least half, less than half), and the
 branches' 3-class agreement by the same bins. With --versus OTHER.json MODE OTHER_MODE, also
 in how many procedures (matched by folder name) MODE errs less or more than OTHER_MODE of the
-other file.
+other file, and the difference of their MAEs over the segments both give a value for, with
+a 95% interval bootstrapped over those procedures as `c2d2 eval` does (paired: the same
+procedures are drawn for both).
 
 Reads the eval.json of `c2d2 eval` (branches learned and geometric) or the geometric_eval.json
 of benchmarks/geometric_eval.py (each of its modes).
@@ -15,6 +17,8 @@ of benchmarks/geometric_eval.py (each of its modes).
     python benchmarks/eval_spread.py docs/geometric/thinned/geometric_eval.json
     python benchmarks/eval_spread.py data/eval-heldout-6fps/eval.json \
         --versus data/eval-heldout-support-vscale/eval.json geometric geometric
+    python benchmarks/eval_spread.py data/eval-heldout-cov72/eval.json \
+        --versus data/eval-heldout-s44/eval.json combined combined
 """
 
 from __future__ import annotations
@@ -26,6 +30,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from hybrid.evaluate import procedure_interval
 from learned.coverage_eval import three_class
 
 
@@ -49,8 +54,8 @@ def errors(data: dict) -> dict[str, list[Row]]:
         return {branch: [Row(s["procedure"], s["segment"], counts[s["procedure"]],
                              s[branch] - s["truth"],
                              s.get("geometric_support") if branch == "geometric" else None)
-                         for s in data["segments"] if s[branch] is not None]
-                for branch in ("learned", "geometric")}
+                         for s in data["segments"] if s.get(branch) is not None]
+                for branch in ("learned", "geometric", "combined")}
     rows: dict[str, list[Row]] = {}
     for name, procedure in data["procedures"].items():
         truth = procedure["truth"]
@@ -124,13 +129,28 @@ def procedure_mae(rows: list[Row]) -> dict[str, float]:
 
 
 def print_versus(rows: list[Row], other: list[Row], label: str) -> None:
-    """In how many procedures of both the rows err less, more or the same."""
+    """In how many procedures of both the rows err less, more or the same, and the paired
+    difference of the MAEs over the segments both have, with its bootstrap interval."""
     mine, theirs = procedure_mae(rows), procedure_mae(other)
     both = sorted(mine.keys() & theirs.keys())
     less = sum(mine[p] < theirs[p] for p in both)
     more = sum(mine[p] > theirs[p] for p in both)
     print(f"{label}: MAE lower in {less}, higher in {more}, the same in "
           f"{len(both) - less - more} of {len(both)} procedures")
+    theirs_by_segment = {(Path(r.procedure).name, r.segment): abs(r.error) for r in other}
+    diffs: dict[str, list[float]] = {}
+    for r in rows:
+        key = (Path(r.procedure).name, r.segment)
+        if key in theirs_by_segment:
+            diffs.setdefault(key[0], []).append(abs(r.error) - theirs_by_segment[key])
+    per_procedure = list(diffs.values())
+    pooled = np.mean(np.concatenate(per_procedure))
+    bounds = procedure_interval(len(per_procedure), lambda picks: float(
+        np.mean(np.concatenate([per_procedure[i] for i in picks]))))
+    interval = "" if bounds is None else f" [{bounds[0]:+.4f}, {bounds[1]:+.4f}]"
+    print(f"{'':13s} MAE difference over the {sum(map(len, per_procedure))} segments both "
+          f"give: {pooled:+.4f}{interval} (95%, bootstrapped over {len(per_procedure)} "
+          "procedures)")
 
 
 def print_agreement_by_support(segments: list[dict]) -> None:
