@@ -4,13 +4,14 @@ and bias by the segment's place in its video (first, middle, last: a video's fir
 has context frames after it only, its last before it only); for `c2d2 eval`, the geometric
 branch's MAE and bias also by its support (the share of the segment's expected wall on the
 lumen fitted to the reconstruction: all of it, at least half, less than half), and the
-branches' 3-class agreement by the same bins. With --versus OTHER.json MODE OTHER_MODE, also
-in how many procedures (matched by folder name) MODE errs less or more than OTHER_MODE of the
-other file, and the difference of their MAEs over the segments both give a value for, with
-a 95% interval bootstrapped over those procedures as `c2d2 eval` does (paired: the same
-procedures are drawn for both).
+branches' 3-class agreement by the same bins. With --versus OTHER.json MODE OTHER_MODE, over
+the segments both files give a value for (procedures matched by folder name, which must then
+be unique in each file): in how many procedures MODE errs less or more than OTHER_MODE of the
+other file, and the difference of their MAEs with a 95% interval bootstrapped over those
+procedures as `c2d2 eval` does (paired: the same procedures are drawn for both).
 
-Reads the eval.json of `c2d2 eval` (branches learned and geometric) or the geometric_eval.json
+Reads the eval.json of `c2d2 eval` (branches learned, geometric and the report's combined
+coverage) or the geometric_eval.json
 of benchmarks/geometric_eval.py (each of its modes).
 
     python benchmarks/eval_spread.py data/eval-sim-w03/eval.json
@@ -89,8 +90,9 @@ def main() -> None:
     parser.add_argument("json", type=Path,
                         help="eval.json of c2d2 eval, or geometric_eval.json")
     parser.add_argument("--versus", nargs=3, metavar=("OTHER_JSON", "MODE", "OTHER_MODE"),
-                        help="count the procedures where MODE errs less or more than the "
-                             "other file's OTHER_MODE")
+                        help="compare MODE with the other file's OTHER_MODE on the segments "
+                             "both have: procedures where it errs less or more, and the "
+                             "paired MAE difference with its interval")
     args = parser.parse_args()
     data = json.loads(args.json.read_text())
     for branch, rows in errors(data).items():
@@ -120,37 +122,41 @@ def main() -> None:
                      f"{mode} against {other}'s {other_mode}")
 
 
-def procedure_mae(rows: list[Row]) -> dict[str, float]:
-    """Each procedure's MAE, keyed by its folder's name."""
-    by_name: dict[str, list[float]] = {}
+def segment_errors(rows: list[Row]) -> dict[str, dict[int, float]]:
+    """Each segment's absolute error by procedure folder name, then segment index; an error
+    if two procedures of the rows share a folder name (they could not be matched)."""
+    by_name: dict[str, dict[int, float]] = {}
+    paths: dict[str, str] = {}
     for r in rows:
-        by_name.setdefault(Path(r.procedure).name, []).append(abs(r.error))
-    return {name: float(np.mean(e)) for name, e in by_name.items()}
+        name = Path(r.procedure).name
+        if paths.setdefault(name, r.procedure) != r.procedure:
+            raise SystemExit(f"--versus matches procedures by folder name, but {paths[name]} "
+                             f"and {r.procedure} share one: compare evaluations of one data folder")
+        by_name.setdefault(name, {})[r.segment] = abs(r.error)
+    return by_name
 
 
 def print_versus(rows: list[Row], other: list[Row], label: str) -> None:
-    """In how many procedures of both the rows err less, more or the same, and the paired
-    difference of the MAEs over the segments both have, with its bootstrap interval."""
-    mine, theirs = procedure_mae(rows), procedure_mae(other)
-    both = sorted(mine.keys() & theirs.keys())
-    less = sum(mine[p] < theirs[p] for p in both)
-    more = sum(mine[p] > theirs[p] for p in both)
+    """Over the segments both have: in how many procedures the rows err less, more or the
+    same, and the paired difference of the MAEs with its bootstrap interval."""
+    mine, theirs = segment_errors(rows), segment_errors(other)
+    diffs = [np.array([mine[name][k] - theirs[name][k]
+                       for k in sorted(mine[name].keys() & theirs[name].keys())])
+             for name in sorted(mine.keys() & theirs.keys())]
+    diffs = [d for d in diffs if d.size]
+    if not diffs:
+        print(f"{label}: no segment has a value in both")
+        return
+    less = sum(d.mean() < 0 for d in diffs)
+    more = sum(d.mean() > 0 for d in diffs)
     print(f"{label}: MAE lower in {less}, higher in {more}, the same in "
-          f"{len(both) - less - more} of {len(both)} procedures")
-    theirs_by_segment = {(Path(r.procedure).name, r.segment): abs(r.error) for r in other}
-    diffs: dict[str, list[float]] = {}
-    for r in rows:
-        key = (Path(r.procedure).name, r.segment)
-        if key in theirs_by_segment:
-            diffs.setdefault(key[0], []).append(abs(r.error) - theirs_by_segment[key])
-    per_procedure = list(diffs.values())
-    pooled = np.mean(np.concatenate(per_procedure))
-    bounds = procedure_interval(len(per_procedure), lambda picks: float(
-        np.mean(np.concatenate([per_procedure[i] for i in picks]))))
+          f"{len(diffs) - less - more} of {len(diffs)} procedures")
+    bounds = procedure_interval(len(diffs), lambda picks: float(
+        np.mean(np.concatenate([diffs[i] for i in picks]))))
     interval = "" if bounds is None else f" [{bounds[0]:+.4f}, {bounds[1]:+.4f}]"
-    print(f"{'':13s} MAE difference over the {sum(map(len, per_procedure))} segments both "
-          f"give: {pooled:+.4f}{interval} (95%, bootstrapped over {len(per_procedure)} "
-          "procedures)")
+    print(f"{'':13s} MAE difference over the {sum(d.size for d in diffs)} segments both "
+          f"give: {np.mean(np.concatenate(diffs)):+.4f}{interval} (95%, bootstrapped over "
+          f"{len(diffs)} procedures)")
 
 
 def print_agreement_by_support(segments: list[dict]) -> None:
