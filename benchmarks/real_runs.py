@@ -9,7 +9,7 @@ Prints per run the segments' learned and geometric coverage, the branches' 3-cla
 the share of frames the motion network has moving along their view (travel z > 0 before
 `--insertion` negates it: a withdrawal looking back, or an advance looking ahead) and the 5th
 percentile and median of the odometry's fitness between consecutive frames, and writes a JSON
-summary.
+summary. --coverage-checkpoint runs them with another coverage model than the shipped one.
 
     python benchmarks/real_runs.py --data ../shared/data --out /tmp/c2d2-real
 """
@@ -33,9 +33,10 @@ CVC_STARTS = (1, 26, 51, 68, 79, 104, 127, 152, 178, 200, 206, 228, 253, 278, 29
               384, 409, 429, 448, 467, 479, 504, 529, 547, 572, 592)
 
 
-def run(source: Path, out: Path, *extra: str) -> dict:
+def run(source: Path, out: Path, coverage: Path, *extra: str) -> dict:
     c2d2 = str(Path(sys.executable).with_name("c2d2"))
-    done = subprocess.run([c2d2, "run", str(source), "--out", str(out), *extra],
+    done = subprocess.run([c2d2, "run", str(source), "--out", str(out),
+                           "--coverage-checkpoint", str(coverage), *extra],
                           capture_output=True, text=True)
     if done.returncode not in (0, 3):
         return {"source": str(source), "error": done.stderr.strip().splitlines()[-1]}
@@ -47,15 +48,15 @@ def run(source: Path, out: Path, *extra: str) -> dict:
                          for s in table["segments"]],
             "intrinsics": {k: json.loads((out / "intrinsics.json").read_text())[k]
                            for k in ("fx", "fy", "cx", "cy", "width", "height")},
-            "moving_along_view": moving_along_view(out),
+            "moving_along_view": moving_along_view(out, coverage),
             "odometry_fitness_gap1": json.loads((out / W.ODOMETRY).read_text())[
                 "fitness_p5_median"]["1"]}
 
 
-def moving_along_view(out: Path) -> float:
-    """Share of a run's frames whose travel (the shipped coverage model's gap) has z > 0."""
+def moving_along_view(out: Path, coverage: Path) -> float:
+    """Share of a run's frames whose travel (at the coverage model's gap) has z > 0."""
     ingested = json.loads((out / W.INGEST).read_text())
-    gap = load_coverage_model(SHIPPED_COVERAGE).config.travel_frames(ingested["fps"])
+    gap = load_coverage_model(coverage).config.travel_frames(ingested["fps"])
     with np.load(out / W.RELATIVE) as data:
         relative = data[f"gap{gap}"]
     return float(np.mean(travel_features(relative, ingested["frames"])[:, 2] > 0))
@@ -81,13 +82,16 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--data", type=Path, default=Path("../shared/data"))
     parser.add_argument("--out", type=Path, default=Path("/tmp/c2d2-real"))
+    parser.add_argument("--coverage-checkpoint", type=Path, default=SHIPPED_COVERAGE)
     args = parser.parse_args()
     clip = args.data / "real-clip" / "colonoscopy_192px_6fps.mp4"
-    results = {"clip-withdrawal": run(clip, args.out / "clip"),
-               "clip-insertion": run(clip, args.out / "clip-insertion", "--insertion")}
+    model = args.coverage_checkpoint
+    results = {"clip-withdrawal": run(clip, args.out / "clip", model),
+               "clip-insertion": run(clip, args.out / "clip-insertion", model, "--insertion")}
     for folder in cvc_sequences(args.data / "cvc-clinicdb" / "frames", args.out / "cvc-input"):
         count = len(list(folder.iterdir()))
-        results[folder.name] = run(folder, args.out / folder.name, "--fps", f"{count / 10:g}")
+        results[folder.name] = run(folder, args.out / folder.name, model, "--fps",
+                                   f"{count / 10:g}")
     (args.out / "real_runs.json").write_text(json.dumps(results, indent=1) + "\n")
     for name, r in results.items():
         if "error" in r:
