@@ -8,7 +8,8 @@ branches' 3-class agreement by the same bins. With --versus OTHER.json MODE OTHE
 the segments both files give a value for (procedures matched by folder name, which must then
 be unique in each file): in how many procedures MODE errs less or more than OTHER_MODE of the
 other file, and the difference of their MAEs with a 95% interval bootstrapped over those
-procedures as `c2d2 eval` does (paired: the same procedures are drawn for both).
+procedures as `c2d2 eval` does (paired: the same procedures are drawn for both); for two
+`c2d2 eval` files, also the segments whose branches agree in one and not in the other.
 
 Reads the eval.json of `c2d2 eval` (branches learned, geometric and the report's combined
 coverage) or the geometric_eval.json
@@ -95,7 +96,8 @@ def main() -> None:
                              "paired MAE difference with its interval")
     args = parser.parse_args()
     data = json.loads(args.json.read_text())
-    for branch, rows in errors(data).items():
+    branches = errors(data)
+    for branch, rows in branches.items():
         procedures = sorted({r.procedure for r in rows})
         mae = np.mean([abs(r.error) for r in rows])
         left_out = np.array([np.mean([abs(r.error) for r in rows if r.procedure != p])
@@ -118,8 +120,11 @@ def main() -> None:
         print_agreement_by_support(data["segments"])
     if args.versus:
         other, mode, other_mode = args.versus
-        print_versus(errors(data)[mode], errors(json.loads(Path(other).read_text()))[other_mode],
+        other_data = json.loads(Path(other).read_text())
+        print_versus(branches[mode], errors(other_data)[other_mode],
                      f"{mode} against {other}'s {other_mode}")
+        if "segments" in data and "segments" in other_data:
+            print_agreement_changes(data["segments"], other_data["segments"])
 
 
 def segment_errors(rows: list[Row]) -> dict[str, dict[int, float]]:
@@ -157,6 +162,28 @@ def print_versus(rows: list[Row], other: list[Row], label: str) -> None:
     print(f"{'':13s} MAE difference over the {sum(d.size for d in diffs)} segments both "
           f"give: {np.mean(np.concatenate(diffs)):+.4f}{interval} (95%, bootstrapped over "
           f"{len(diffs)} procedures)")
+
+
+def print_agreement_changes(segments: list[dict], other: list[dict]) -> None:
+    """The segments (matched as in --versus) whose branches agree in one c2d2 eval file and
+    not in the other, with both files' values."""
+    def agree(s: dict) -> bool | None:
+        if s["learned"] is None or s["geometric"] is None:
+            return None
+        return bool(three_class(s["learned"]) == three_class(s["geometric"]))
+
+    theirs = {(Path(s["procedure"]).name, s["segment"]): s for s in other}
+    changed = [(s, theirs[key]) for s in segments
+               if (key := (Path(s["procedure"]).name, s["segment"])) in theirs
+               and None not in (agree(s), agree(theirs[key])) and agree(s) != agree(theirs[key])]
+    print(f"agreement changed in {len(changed)} segments: "
+          f"{sum(agree(s) for s, _ in changed)} now agree, "
+          f"{sum(not agree(s) for s, _ in changed)} no longer")
+    for s, t in changed:
+        print(f"  {Path(s['procedure']).name} segment {s['segment']}: truth {s['truth']:.3f}, "
+              f"learned {t['learned']:.3f} -> {s['learned']:.3f}, geometric "
+              f"{t['geometric']:.3f} -> {s['geometric']:.3f}, "
+              f"{'agree' if agree(s) else 'disagree'}")
 
 
 def print_agreement_by_support(segments: list[dict]) -> None:
