@@ -382,6 +382,10 @@ class CoverageConfig:
     whose minimiser is the conditional median, the estimate of least mean absolute error."""
     segment_loss: str = "l2"
     """Stage 2 loss on the window coverages: 'l2' (the paper) or 'l1'."""
+    frame_precision: str = "float32"
+    """Stage 1 arithmetic: 'float32', or 'bfloat16' (autocast: the per-frame network's
+    passes in bfloat16, its weights, optimiser and loss in float32). Prediction is float32
+    either way."""
     weight_decay: float = 1e-4
     """AdamW weight decay of both stages."""
     depth_power: float = 0.0
@@ -407,6 +411,9 @@ class CoverageConfig:
         for name in ("frame_loss", "segment_loss"):
             if getattr(self, name) not in ("l1", "l2"):
                 raise ValueError(f"{name} must be 'l1' or 'l2', got {getattr(self, name)!r}")
+        if self.frame_precision not in ("float32", "bfloat16"):
+            raise ValueError(f"frame_precision must be 'float32' or 'bfloat16', got "
+                             f"{self.frame_precision!r}")
         if self.field_of_view not in ("none", "predicted", "true"):
             raise ValueError(f"field_of_view must be 'none', 'predicted' or 'true', got "
                              f"{self.field_of_view!r}")

@@ -111,7 +111,10 @@ def train_frame_net(model: CoverageModel, samples: list[ProcedureSamples], log,
             x = powered(x, torch.from_numpy(np.exp(u).astype(np.float32)).to(device))
         y = torch.from_numpy(labels[ids]).to(device)
         ok = torch.isfinite(y)
-        error = regression_loss(config.frame_loss, model.frame(x, m)[ok], y[ok])
+        with torch.autocast(device.type, torch.bfloat16,
+                            enabled=config.frame_precision == "bfloat16"):
+            predicted = model.frame(x, m).float()
+        error = regression_loss(config.frame_loss, predicted[ok], y[ok])
         running.append(_optimise(error, optimizer, schedule))
         bar.update(1)
         if (step + 1) % 100 == 0 or step + 1 == total:

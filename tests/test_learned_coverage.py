@@ -289,6 +289,23 @@ def test_training_reduces_both_losses_on_a_tiny_set():
     assert all(np.isfinite(e["loss"]) for e in log)
 
 
+def test_stage_one_in_bfloat16_trains_float32_weights_through_bfloat16_passes():
+    samples = toy_samples()
+    torch.manual_seed(0)
+    model = CoverageModel(replace(SMALL, frame_precision="bfloat16"))
+    before = frame_loss(model, samples)
+    passes: set[torch.dtype] = set()
+    model.frame.encoder.stem.register_forward_hook(lambda m, i, out: passes.add(out.dtype))
+    train_frame_net(model, samples, lambda entry: None)
+    assert passes == {torch.bfloat16}
+    assert {p.dtype for p in model.parameters()} == {torch.float32}
+    after = frame_loss(model, samples)
+    assert after < 0.5 * before, (before, after)
+    passes.clear()
+    model.frame_outputs(samples[0].inputs, samples[0].cues)  # prediction stays float32
+    assert passes == {torch.float32}
+
+
 @pytest.mark.parametrize(("kind", "fit"), [("l2", 0.18), ("l1", 0.0)])
 def test_l2_loss_fits_the_mean_and_l1_the_median(kind, fit):
     """Seven frames covered 0 and three 0.6: one constant fits 0.18 under L2, 0 under L1."""
@@ -438,6 +455,8 @@ def test_coverage_config_overrides():
         coverage_config("fast", field_of_view="wide")
     with pytest.raises(ValueError, match="segment_loss"):
         coverage_config("fast", segment_loss="huber")
+    with pytest.raises(ValueError, match="frame_precision"):
+        coverage_config("fast", frame_precision="float16")
     assert coverage_config("paper").frame_loss == "l2"  # the paper's loss
     with pytest.raises(ValueError, match="unknown preset"):
         coverage_config("huge")
