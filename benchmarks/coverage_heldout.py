@@ -31,6 +31,7 @@ reused when they match.
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import time
 from dataclasses import replace
@@ -45,6 +46,7 @@ from learned.coverage_train import (
     fit_model,
     load_run,
     load_samples,
+    run_samples,
 )
 from learned.train import expand_inputs, input_name
 
@@ -66,7 +68,8 @@ def main() -> None:
     parser.add_argument("--out", type=Path, required=True, help="where to save the model")
     parser.add_argument("--set", action="append", default=[], metavar="K=V",
                         help="fit the new model with this CoverageConfig field changed "
-                             "(repeat), e.g. frame_epochs=7")
+                             "(repeat), e.g. frame_epochs=7; a field of its inputs (e.g. "
+                             "median_normalise=false) changes them for the new model alone")
     args = parser.parse_args()
     if args.plus_fold_training and args.fold is None:
         parser.error("--plus-fold-training needs --fold")
@@ -98,6 +101,10 @@ def main() -> None:
     if not (paths or frame_paths or fold_training):
         parser.error("nothing to train on: give --train, --frame-train or --plus-fold-training")
     depth = Path(record["depth_checkpoint"]["path"])
+    # the new model's inputs follow its own config (a --set may change them, e.g.
+    # median_normalise); the run's samples serve it when nothing changed
+    fit_samples = functools.cache(lambda: samples if fit_config == config
+                                  else run_samples(args.run, record, fit_config, progress=True))
     sidecar = args.out.with_suffix(".json")
     if args.out.is_file():
         trained_on = json.loads(sidecar.read_text())["procedures"] if sidecar.is_file() else None
@@ -106,9 +113,9 @@ def main() -> None:
                              f"it or choose another --out")
         model = load_coverage_model(args.out)
     else:
-        train = [samples[i] for i in fold_training] + load_samples(paths, config, depth,
-                                                                   progress=True)
-        frames = (load_samples(frame_paths, config, depth, progress=True, frames_only=True)
+        train = [fit_samples()[i] for i in fold_training] + load_samples(
+            paths, fit_config, depth, progress=True)
+        frames = (load_samples(frame_paths, fit_config, depth, progress=True, frames_only=True)
                   if frame_paths else [])
         tic = time.time()
         model = fit_model(train, fit_config, lambda entry: None, progress=True,
@@ -125,7 +132,7 @@ def main() -> None:
     for k, fold_model in fold_models.items():
         held = [samples[i] for i in folds[k]]
         evaluate(fold_model, held, theirs)
-        evaluate(model, held, ours)
+        evaluate(model, [fit_samples()[i] for i in folds[k]], ours)
     which = "all folds" if args.fold is None else f"fold {args.fold}"
     ours_name = "trained on " + " + ".join(
         part for part, given in (("--train", paths),
@@ -138,7 +145,9 @@ def main() -> None:
         extra = load_samples(args.data, config, depth, progress=True)
         for k, fold_model in fold_models.items():
             rows[f"fold model {k}, --data"] = coverage_metrics(evaluate(fold_model, extra))
-        rows[f"{ours_name}, --data"] = coverage_metrics(evaluate(model, extra))
+        ours_extra = (extra if fit_config == config
+                      else load_samples(args.data, fit_config, depth, progress=True))
+        rows[f"{ours_name}, --data"] = coverage_metrics(evaluate(model, ours_extra))
     print(format_table(rows))
 
 

@@ -330,7 +330,9 @@ class CoverageConfig:
     or 'true' (the simulator's depth, an ablation)."""
     median_normalise: bool = True
     """Divide each depth map by its median (the rule for depth of unknown scale); False feeds
-    log depth as is, an ablation that only makes sense with metric (true) depth."""
+    log depth as is: centimetres for true depth, the depth network's own units for predicted
+    depth, which carry part of the true scale across videos (docs/coverage.md, "The depth
+    network's own scale as an input")."""
     travel_gap: int = 8
     """Frames (at frame_rate) between the motion network's pair that gives each frame's
     direction of travel, an input of the per-frame network besides the depth

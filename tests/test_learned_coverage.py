@@ -104,6 +104,11 @@ def test_normalised_input_is_log_depth_over_its_median():
     assert np.allclose(out[0, 0, 4, 5:], np.log(8.0 / median))
     # Scale invariance: depth known up to scale gives the same input.
     assert np.allclose(normalise_depth(depth * 7.5, region, (8, 10)), out, atol=1e-6)
+    # Without the median: log depth, so a scale shows as a shift.
+    own = normalise_depth(depth, region, (8, 10), by_median=False)
+    assert np.allclose(own, out + np.log(median), atol=1e-6)
+    assert np.allclose(normalise_depth(depth * 7.5, region, (8, 10), by_median=False),
+                       own + np.log(7.5), atol=1e-6)
 
 
 def test_powered_input_is_that_of_the_depth_raised_to_the_power():

@@ -260,9 +260,10 @@ def test_learned_stage_computes_a_travel_gap_its_depth_stage_lacks(pipeline_run,
 
 def test_networks_reading_the_field_of_view_and_scale_get_those_of_the_run(procedure,
                                                                             tmp_path):
-    """Coverage networks trained with travel_hops, field_of_view='predicted' and depth_scale
-    (untrained here) read each frame's travel, its travel over the hops chained, the field of
-    view of the run's intrinsics.json, then the frame's depth scale against the video's."""
+    """Coverage networks trained with travel_hops, field_of_view='predicted', depth_scale and
+    median_normalise=False (untrained here) read each frame's log depth in the depth
+    network's own units, its travel, its travel over the hops chained, the field of view of
+    the run's intrinsics.json, then the frame's depth scale against the video's."""
     from learned.checkpoint import file_tag
     from learned.checkpoints import SHIPPED_DEPTH
     from learned.config import COVERAGE_PRESETS
@@ -273,7 +274,8 @@ def test_networks_reading_the_field_of_view_and_scale_get_those_of_the_run(proce
 
     torch.manual_seed(0)
     coverage = CoverageModel(replace(COVERAGE_PRESETS["fast"], field_of_view="predicted",
-                                     depth_scale=True, travel_hops=4))
+                                     depth_scale=True, travel_hops=4,
+                                     median_normalise=False))
     models = Models(load_depth_model(SHIPPED_DEPTH), coverage,
                     {"depth": file_tag(SHIPPED_DEPTH), "coverage": "untrained"})
     with _OneThread():
@@ -290,7 +292,8 @@ def test_networks_reading_the_field_of_view_and_scale_get_those_of_the_run(proce
         relative[9:] @ relative[6:-3] @ relative[3:-6] @ relative[:-9], len(depth))], axis=1)
     view = view_values(K, depth.shape[2], depth.shape[1], len(depth))
     region = cv2.imread(str(work / W.REGION), cv2.IMREAD_GRAYSCALE) > 0
-    inputs = normalise_depth(depth, region, (coverage.config.height, coverage.config.width))
+    size = (coverage.config.height, coverage.config.width)
+    inputs = normalise_depth(depth, region, size, by_median=False)
     medians = np.median(depth[:, region], axis=1)
     scale = np.log(medians / np.median(medians))[:, None]
     expected = coverage.frame_outputs(inputs, np.concatenate([travel, view, scale], axis=1))[1]
@@ -299,6 +302,9 @@ def test_networks_reading_the_field_of_view_and_scale_get_those_of_the_run(proce
                   [travel[:, :4], 0 * travel[:, 4:], view, scale]):
         blind = coverage.frame_outputs(inputs, np.concatenate(blind, axis=1))[1]
         assert np.abs(features - blind).max() > 1e-3  # the view, scale, chained travel read
+    cues = np.concatenate([travel, view, scale], axis=1)
+    by_median = coverage.frame_outputs(normalise_depth(depth, region, size), cues)[1]
+    assert np.abs(features - by_median).max() > 1e-3  # the depth's own scale read
 
 
 # --- resuming a work directory ---------------------------------------------------------------
