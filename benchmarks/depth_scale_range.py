@@ -70,10 +70,9 @@ def main() -> None:
         for path in expand_inputs([folder])[:args.count]:
             proc = Procedure.open(path)
             ids = np.arange(0, proc.num_frames, args.every)
-            depth, region = true_depth(proc)
             folders.append(folder)
             network.append(log_medians(model, path, args.every))
-            truth.append(np.log(region_medians(depth[ids], region, str(path))))
+            truth.append(np.log(region_medians(*true_depth(proc, ids), str(path))))
             fov.append(np.degrees(2 * np.arctan(proc.camera.width / (2 * proc.camera.K[0, 0]))))
     pooled_net, pooled_true = np.concatenate(network), np.concatenate(truth)
     slope = np.polyfit(pooled_true, pooled_net, 1)[0]

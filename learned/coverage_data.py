@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import functools
 import os
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -149,9 +150,12 @@ def procedure_samples(path: Path, config: CoverageConfig, depth_model: DepthMode
         segment_starts=segment_starts.astype(int), segment_labels=segment_labels)
 
 
-def true_depth(proc: Procedure) -> tuple[np.ndarray, np.ndarray]:
-    """The simulator's depth (N, H, W) and its region (all of the image; the ablation)."""
-    depth = np.stack([proc.depth(i) for i in range(proc.num_frames)])
+def true_depth(proc: Procedure, frames: Sequence[int] | None = None
+               ) -> tuple[np.ndarray, np.ndarray]:
+    """The simulator's depth (N, H, W) of all frames, or of the given ones, and its region
+    (all of the image; the ablation)."""
+    frames = range(proc.num_frames) if frames is None else frames
+    depth = np.stack([proc.depth(i) for i in frames])
     # No surface (looking out of the open rectum end): as far as the frame's farthest wall.
     depth = np.where(depth > 0, depth, depth.max(axis=(1, 2), keepdims=True))
     return depth, np.ones(depth.shape[1:], dtype=bool)
