@@ -44,6 +44,7 @@ def run(source: Path, out: Path, coverage: Path, *extra: str) -> dict:
     return {"source": str(source), "exit": done.returncode, "agreement": table["agreement"],
             "geometric_error": table["geometric_error"],
             "segments": [{k: s[k] for k in ("start_s", "end_s", "learned", "geometric",
+                                            "geometric_support", "coverage",
                                             "agree", "deficient", "assessable")}
                          for s in table["segments"]],
             "intrinsics": {k: json.loads((out / "intrinsics.json").read_text())[k]

@@ -27,14 +27,15 @@ CLASS_NAMES = ("mostly not covered", "partial", "mostly covered")
 
 
 def combined_coverage(learned: float | None, geometric: float | None,
-                      support: float | None) -> float | None:
+                      support: float | None, geometric_weight: float = 1.0) -> float | None:
     """The report's coverage of a segment: the learned and geometric values averaged with
-    weights 1 and the geometric one's support, so that a geometric value resting on
-    extrapolated wall counts less (the plain mean where the support is not known, as in work
-    folders written before it was recorded); the one value where only one branch gave one."""
+    weights 1 and `geometric_weight` times the geometric one's support, so that a geometric
+    value resting on extrapolated wall counts less (support 1 where it is not known, as in
+    work folders written before it was recorded); the one value where only one branch gave
+    one."""
     if geometric is None or learned is None:
         return geometric if learned is None else learned
-    weight = 1.0 if support is None else support
+    weight = geometric_weight * (1.0 if support is None else support)
     return float((learned + weight * geometric) / (1.0 + weight))
 
 
@@ -76,6 +77,7 @@ class CrossCheck:
     rows: list[SegmentRow]
     deficient_below: float
     min_usable_fraction: float
+    geometric_weight: float
     geometric_error: str | None = None
 
     @property
@@ -89,6 +91,7 @@ class CrossCheck:
                 "class_edges": list(CLASS_EDGES), "class_names": list(CLASS_NAMES),
                 "deficient_below": self.deficient_below,
                 "min_usable_fraction": self.min_usable_fraction,
+                "geometric_weight": self.geometric_weight,
                 "agreement": self.agreement, "geometric_error": self.geometric_error,
                 "segments": [asdict(r) for r in self.rows]}
 
@@ -118,7 +121,8 @@ def cross_check(out: Path, ingested: Ingested, config) -> CrossCheck:
     for segment in learned:
         index, start, stop = segment["index"], segment["start"], segment["stop"]
         value_l, value_g = segment["coverage"], geometric.get(index)
-        combined = combined_coverage(value_l, value_g, support.get(index))
+        combined = combined_coverage(value_l, value_g, support.get(index),
+                                     config.geometric_weight)
         fraction = float(usable[start:stop].mean())
         assessable = fraction >= config.min_usable_fraction
         classes = coverage_class(value_l), coverage_class(value_g)
@@ -130,4 +134,5 @@ def cross_check(out: Path, ingested: Ingested, config) -> CrossCheck:
             combined,
             bool(assessable and combined is not None and combined < config.deficient_below),
             bool(assessable), fraction))
-    return CrossCheck(rows, config.deficient_below, config.min_usable_fraction, error)
+    return CrossCheck(rows, config.deficient_below, config.min_usable_fraction,
+                      config.geometric_weight, error)

@@ -76,6 +76,10 @@ class RunConfig:
     """A segment is deficient when its coverage (the branches that ran, combined by
     hybrid.crosscheck.combined_coverage) is below this: the 'mostly not covered' class of the
     3-class bins."""
+    geometric_weight: float = 0.5
+    """The geometric coverage's weight against the learned one's in the combined coverage, at
+    full support (hybrid.crosscheck.combined_coverage): chosen on data/heldout and checked on
+    data/heldout2 (docs/pipeline.md, "The branches' weights in the combined coverage")."""
     odometry: OdometryConfig = field(default_factory=OdometryConfig)
     posegraph: PoseGraphConfig = field(default_factory=PoseGraphConfig)
     reconstruction: ReconstructionConfig = field(default_factory=ReconstructionConfig)
@@ -85,6 +89,9 @@ class RunConfig:
         check_fps(self.fps)
         if not self.segment_seconds > 0:
             raise InputError(f"segments must last a positive time, got {self.segment_seconds}")
+        if not self.geometric_weight >= 0:
+            raise InputError(f"the geometric coverage's weight must be 0 or more, got "
+                             f"{self.geometric_weight}")
 
 
 @dataclass

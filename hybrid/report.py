@@ -178,7 +178,8 @@ def write_report(out: Path, table: CrossCheck, ingested: Ingested) -> Path:
              f"assessable: at least {table.min_usable_fraction:.0%} usable frames; "
              f"geometric support: the share of a segment's expected wall that the "
              f"reconstruction reached (the rest is its lumen continued straight); coverage: "
-             f"the branches combined, the geometric value weighted by its support. "
+             f"the branches combined, the geometric value weighted "
+             f"{table.geometric_weight:g} × its support against the learned one's 1. "
              f"Branch agreement (3 classes): "
              f"{'n/a' if table.agreement is None else f'{table.agreement:.0%}'}.</p>"]
     if ingested.decode_warning:

@@ -24,12 +24,13 @@ from test_learned_cli import runner
 
 from hybrid import workdir as W
 from hybrid.cli import app
-from hybrid.crosscheck import cross_check
+from hybrid.crosscheck import combined_coverage, cross_check
 from hybrid.dataset import Procedure
 from hybrid.evaluate import summarise
 from hybrid.ingest import Ingested
 from hybrid.pipeline import Models, RunConfig, run_video, video_features, work_segments
 from hybrid.sim.simulate import SimConfig, simulate_procedure, with_overrides
+from hybrid.types import InputError
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 
@@ -189,7 +190,7 @@ def test_both_branches_are_close_to_the_truth(pipeline_run, procedure):
     for row, value_l, value_g in zip(rows, learned, geometric, strict=True):
         assert 0 <= row["geometric_support"] <= 1
         assert row["difference"] == pytest.approx(value_l - value_g)
-        weight = row["geometric_support"]
+        weight = RunConfig().geometric_weight * row["geometric_support"]
         assert row["coverage"] == pytest.approx((value_l + weight * value_g) / (1 + weight))
 
 
@@ -642,8 +643,20 @@ def hand_made_work_dir(out: Path, geometric: list[float | None] | None) -> Inges
     return Ingested("hand.avi", 25.0, 50, 160, 128, {}, dark, over, blur)
 
 
+def test_combined_coverage_weighs_the_geometric_value_by_its_weight_and_support():
+    assert combined_coverage(0.6, 0.9, 0.5, 0.5) == pytest.approx((0.6 + 0.25 * 0.9) / 1.25)
+    assert combined_coverage(0.6, 0.9, None, 0.5) == pytest.approx((0.6 + 0.5 * 0.9) / 1.5)
+    assert combined_coverage(0.6, 0.9, 1.0, 0.0) == pytest.approx(0.6)
+    assert combined_coverage(0.6, 0.9, 0.0, 2.0) == pytest.approx(0.6)
+    assert combined_coverage(None, 0.9, 0.5, 0.5) == 0.9
+    assert combined_coverage(0.6, None, None, 0.5) == 0.6
+    assert RunConfig().geometric_weight == 0.5
+    with pytest.raises(InputError, match="weight must be 0 or more"):
+        RunConfig(geometric_weight=-0.1)
+
+
 def test_cross_check_by_hand(tmp_path):
-    config = RunConfig()
+    config = RunConfig(geometric_weight=1.0)
     assert (config.deficient_below, config.min_usable_fraction) == (0.4, 0.5)
     ingested = hand_made_work_dir(tmp_path / "work", [0.85, 0.55, 0.25, 0.10, None])
     table = cross_check(tmp_path / "work", ingested, config)
@@ -657,8 +670,8 @@ def test_cross_check_by_hand(tmp_path):
     assert table.agreement == 0.5  # 2 of the 4 segments with both values
     assert [r.difference for r in rows] == pytest.approx([0.05, -0.25, 0.25, 0.10, None])
     assert [r.geometric_support for r in rows] == [0.5, None, 1.0, 0.0, None]
-    # learned and geometric weighted 1 : support (1 : 1 where it is not known); the one value
-    # where only one branch gave one
+    # learned and geometric weighted 1 : support (the weight 1.0 set above; 1 : 1 where the
+    # support is not known); the one value where only one branch gave one
     assert [r.coverage for r in rows] == pytest.approx(
         [(0.90 + 0.5 * 0.85) / 1.5, 0.425, 0.375, 0.20, 0.40])
     assert [r.usable_fraction for r in rows] == pytest.approx([1.0, 1.0, 0.5, 0.4, 0.9])
@@ -673,7 +686,8 @@ def test_cross_check_by_hand(tmp_path):
     with (tmp_path / "c.csv").open() as f:
         saved = list(csv.DictReader(f))
     assert [row["geometric"] for row in saved][3:] == ["0.1", ""]
-    assert json.loads((tmp_path / "c.json").read_text())["agreement"] == 0.5
+    saved = json.loads((tmp_path / "c.json").read_text())
+    assert (saved["agreement"], saved["geometric_weight"]) == (0.5, 1.0)
 
 
 def test_cross_check_without_the_geometric_branch(tmp_path):
