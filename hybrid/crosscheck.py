@@ -27,7 +27,7 @@ CLASS_NAMES = ("mostly not covered", "partial", "mostly covered")
 
 
 def combined_coverage(learned: float | None, geometric: float | None,
-                      support: float | None, geometric_weight: float = 1.0) -> float | None:
+                      support: float | None, geometric_weight: float) -> float | None:
     """The report's coverage of a segment: the learned and geometric values averaged with
     weights 1 and `geometric_weight` times the geometric one's support, so that a geometric
     value resting on extrapolated wall counts less (support 1 where it is not known, as in
