@@ -6,9 +6,12 @@ reads the per-segment values of `c2d2 eval` runs and prints, per eval.json, the 
 coverage's MAE, its 3-class accuracy and how many segments it puts below 0.4 (the deficient
 rule's threshold; in brackets, how many of those truly lie below it), with the correlation of
 the branches' errors and the number of segments whose truth lies below 0.4. Then, for
-each file, the weight with the lowest MAE over the other files (chosen without it) and its MAE
-on the file against that of the weight 1, with the paired difference's 95% interval
-bootstrapped over procedures as `c2d2 eval` does.
+each file, the weight with the lowest mean of the other files' MAEs (chosen without it) and
+its MAE on the file against that of the weight 1, with the paired difference's 95% interval
+bootstrapped over procedures as `c2d2 eval` does. Only segments where both branches gave a
+value count (elsewhere the weight changes nothing), so its MAE at weight 1 is eval.json's
+combined MAE only where the geometric branch answered everywhere. A segment without a
+recorded support (eval.json written before it was) has support 1, as in the report.
 
     python benchmarks/combination_weight.py data/eval-heldout-cov72/eval.json \\
         data/eval-heldout2-cov72/eval.json
@@ -34,14 +37,15 @@ def read(path: Path) -> dict[str, np.ndarray]:
     if not rows:
         raise SystemExit(f"{path}: no segment with both branches")
     columns = {key: np.array([r[key] for r in rows], dtype=float)
-               for key in ("truth", "learned", "geometric", "geometric_support")}
+               for key in ("truth", "learned", "geometric")}
+    columns["support"] = np.array([r.get("geometric_support") for r in rows], dtype=object)
     columns["procedure"] = np.unique([r["procedure"] for r in rows], return_inverse=True)[1]
     return columns
 
 
 def combined(data: dict[str, np.ndarray], weight: float) -> np.ndarray:
     return np.array([combined_coverage(lv, gv, sv, weight) for lv, gv, sv in zip(
-        data["learned"], data["geometric"], data["geometric_support"], strict=True)])
+        data["learned"], data["geometric"], data["support"], strict=True)])
 
 
 def mae(data: dict[str, np.ndarray], weight: float) -> float:
@@ -71,6 +75,8 @@ def main() -> None:
     parser.add_argument("--weights", type=float, nargs="+",
                         default=[0.0, 0.25, 0.5, 0.75, 1.0, 1.5, 2.0])
     args = parser.parse_args()
+    if not all(np.isfinite(w) and w >= 0 for w in args.weights):
+        parser.error(f"--weights must be finite numbers, 0 or more: {args.weights}")
     sets = {path: read(path) for path in args.evals}
     print("weight  " + "  ".join(f"{'MAE / 3-class / below 0.4':>25s}" for _ in sets))
     for weight in args.weights:

@@ -7,8 +7,8 @@ procedures this prints the mean relative fx error of the median over all pairs a
 pairs whose rotation (the motion network's own estimate, gap 1) lies in the top 50 / 25 / 10 /
 3% of the procedure's, the mean correlation of the per-pair fx with that rotation, and how the
 head's fx follows the true one across procedures (correlation, slope, means). Last, the error
-of one constant fx for every procedure, the mean true fx of the other folders: what a head
-that read nothing of the camera would score.
+of one constant fx for every procedure, the mean true fx of the other folders (with two or
+more): what a head that read nothing of the camera would score.
 
     python benchmarks/focal_by_rotation.py --data data/heldout data/heldout2
 """
@@ -59,8 +59,10 @@ def main() -> None:
         print(f"    per-pair fx against rotation: mean correlation {np.mean(correlations):+.3f}; "
               f"head against true fx: correlation {np.corrcoef(t, h)[0, 1]:.2f}, slope "
               f"{np.polyfit(t, h, 1)[0]:.2f}, mean {h.mean():.1f} against {t.mean():.1f} px")
+    if len(args.data) < 2:
+        return
     for folder in args.data:
-        others = np.concatenate([truth[f] for f in args.data if f != folder] or [truth[folder]])
+        others = np.concatenate([truth[f] for f in args.data if f != folder])
         t = np.array(truth[folder])
         print(f"{folder}: one fx for all, {others.mean():.1f} px (the other folders' mean "
               f"true fx): error {np.mean(np.abs(others.mean() - t) / t):.1%}")

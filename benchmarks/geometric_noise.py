@@ -38,10 +38,12 @@ from hybrid.pipeline import Models, RunConfig, run_video
 from learned.config import parse_overrides
 
 RERUN = {"posegraph": [W.POSES, W.POSES_RAW, W.ODOMETRY], "reconstruction": []}
-SETTINGS = {"posegraph": ["odometry", "posegraph", "reconstruction", "geometric"],
-            "reconstruction": ["reconstruction", "geometric"]}
-"""The run's settings of the stages that rerun: taken from the current code, so that a change
-to them is measured on the eval's earlier stages (the rest must match, or run_video refuses)."""
+SETTINGS = {"posegraph": ["odometry", "posegraph", "reconstruction", "geometric",
+                          "geometric_weight"],
+            "reconstruction": ["reconstruction", "geometric", "geometric_weight"]}
+"""The run's settings of the stages that rerun (the report's combination among them): taken
+from the current code, so that a change to them is measured on the eval's earlier stages (the
+rest must match, or run_video refuses)."""
 DOWNSTREAM = [W.RECONSTRUCTION, W.MESH, W.LUMEN, W.GEOMETRIC, W.REPORT, W.COVERAGE_JSON,
               W.COVERAGE_CSV, W.GEOMETRIC_ERROR, W.MAPS]
 

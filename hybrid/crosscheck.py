@@ -106,7 +106,8 @@ class CrossCheck:
 
 
 def cross_check(out: Path, ingested: Ingested, config) -> CrossCheck:
-    """Join the branches' segment coverages (config: a RunConfig's thresholds)."""
+    """Join the branches' segment coverages (config: a RunConfig's thresholds and geometric
+    weight)."""
     out = Path(out)
     learned = json.loads((out / W.LEARNED).read_text())["segments"]
     geometric, support, error = {}, {}, None

@@ -4,7 +4,8 @@ Runs (or resumes) `run_video` on each procedure's RGB frames in out/<procedure>/
 per segment: learned and geometric coverage, and the report's combined coverage
 (hybrid.crosscheck.combined_coverage), against the truth (MAE, bias, 3-class accuracy), and
 the 3-class agreement between the two branches; the MAEs and the agreement with 95% intervals
-bootstrapped over procedures. Writes out/eval.json and out/eval_scatter.png.
+bootstrapped over procedures. Writes out/eval.json (with the model files and the geometric
+weight the combined coverage was made with) and out/eval_scatter.png.
 """
 
 from __future__ import annotations
@@ -121,7 +122,8 @@ def evaluate_pipeline(procedures: list[Procedure], out: Path, config: RunConfig,
              f"{[round(r['learned'], 2) for r in table]} geometric "
              f"{[None if r['geometric'] is None else round(r['geometric'], 2) for r in table]}")
     summary = summarise(rows)
-    result = {"summary": summary, "checkpoints": models.tags, "segments": rows}
+    result = {"summary": summary, "checkpoints": models.tags,
+              "geometric_weight": config.geometric_weight, "segments": rows}
     W.write_json(out / "eval.json", result)
     _scatter(rows, out / "eval_scatter.png")
     return result

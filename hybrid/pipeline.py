@@ -18,6 +18,7 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
+import math
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
@@ -89,9 +90,9 @@ class RunConfig:
         check_fps(self.fps)
         if not self.segment_seconds > 0:
             raise InputError(f"segments must last a positive time, got {self.segment_seconds}")
-        if not self.geometric_weight >= 0:
-            raise InputError(f"the geometric coverage's weight must be 0 or more, got "
-                             f"{self.geometric_weight}")
+        if not (math.isfinite(self.geometric_weight) and self.geometric_weight >= 0):
+            raise InputError(f"the geometric coverage's weight must be a finite number, 0 or "
+                             f"more, got {self.geometric_weight}")
 
 
 @dataclass
@@ -437,6 +438,14 @@ def _source_identity(source: Path) -> dict:
     return identity
 
 
+def _differing(before: dict, now: dict) -> str:
+    """The top-level settings in which a work folder's configuration differs from the run's."""
+    names = [key if key in before else f"{key}, which it does not record (a setting added to "
+             f"c2d2 since it was made)" for key in sorted(before.keys() | now.keys())
+             if key not in now or before.get(key) != now[key]]
+    return "; ".join(names)
+
+
 def _prepare(out: Path, config: RunConfig, source: Path, models: Models) -> None:
     """Create the work directory; refuse one that holds a run of another video, config or
     model files."""
@@ -464,8 +473,9 @@ def _prepare(out: Path, config: RunConfig, source: Path, models: Models) -> None
             raise InputError(f"{out} holds a run of {source} as it was before ({why}); use "
                              f"another --out or delete it to start again")
         if previous.get("config") != resolved["config"]:
-            raise InputError(f"{out} holds a run made with another configuration; use another "
-                             f"--out or delete it to start again")
+            raise InputError(f"{out} holds a run made with another configuration (it differs "
+                             f"in {_differing(previous.get('config') or {}, resolved['config'])});"
+                             f" use another --out or delete it to start again")
         if "checkpoints" not in previous:
             raise InputError(f"{out} holds a run by an earlier c2d2 that did not record its "
                              f"model files, so it cannot be resumed safely; use another --out "

@@ -360,8 +360,24 @@ def test_cli_refuses_a_partial_run_with_another_config(pipeline_run, procedure, 
     work, kept = interrupted_copy(out, tmp_path)
     result = runner.invoke(app, ["run", str(procedure.path), "--out", str(work), "--fps", "5"])
     message = assert_input_error(result, str(work))
-    assert "another configuration" in message
+    assert "another configuration (it differs in fps)" in message
     assert snapshot(work) == kept  # nothing deleted, nothing written
+
+
+def test_cli_refuses_a_partial_run_by_a_c2d2_without_a_setting(pipeline_run, procedure,
+                                                              tmp_path):
+    """A work folder whose configuration lacks a setting added since (its report was combined
+    by the rule before) is refused, naming the setting."""
+    out, _ = pipeline_run
+    work, _ = interrupted_copy(out, tmp_path)
+    saved = json.loads((work / W.CONFIG).read_text())
+    del saved["config"]["geometric_weight"]
+    (work / W.CONFIG).write_text(json.dumps(saved))
+    kept = snapshot(work)
+    result = runner.invoke(app, ["run", str(procedure.path), "--out", str(work)])
+    message = assert_input_error(result, str(work))
+    assert "geometric_weight, which it does not record" in message
+    assert snapshot(work) == kept
 
 
 @pytest.mark.parametrize("record, expected", [
@@ -397,6 +413,7 @@ def test_eval_scores_the_run_and_names_its_models(pipeline_run, procedure, tmp_p
     assert result.exit_code == 0, result.output
     saved = json.loads((evaluation / "eval.json").read_text())
     assert saved["checkpoints"] == json.loads((out / W.CONFIG).read_text())["checkpoints"]
+    assert saved["geometric_weight"] == RunConfig().geometric_weight
     table = json.loads((out / W.COVERAGE_JSON).read_text())["segments"]
     truth = procedure.coverage.segment_labels()
     assert [r["learned"] for r in saved["segments"]] == [r["learned"] for r in table]
@@ -651,8 +668,9 @@ def test_combined_coverage_weighs_the_geometric_value_by_its_weight_and_support(
     assert combined_coverage(None, 0.9, 0.5, 0.5) == 0.9
     assert combined_coverage(0.6, None, None, 0.5) == 0.6
     assert RunConfig().geometric_weight == 0.5
-    with pytest.raises(InputError, match="weight must be 0 or more"):
-        RunConfig(geometric_weight=-0.1)
+    for bad in (-0.1, float("inf"), float("nan")):
+        with pytest.raises(InputError, match="weight must be a finite number, 0 or more"):
+            RunConfig(geometric_weight=bad)
 
 
 def test_cross_check_by_hand(tmp_path):
