@@ -52,7 +52,7 @@ def main() -> None:
                              strict=True):
         proc = Procedure.open(path)
         camera = proc.camera
-        fov = 2 * np.degrees(np.arctan(camera.width / 2 / camera.fx))
+        fov = camera.hfov_deg
         frame, segment = predict(model, samples)
         labelled = np.isfinite(samples.frame_labels[:, pair])
         error = frame[labelled, pair] - samples.frame_labels[labelled, pair]

@@ -85,7 +85,7 @@ def main() -> None:
             folders.append(folder)
             network.append(net)
             truth.append(true)
-            fov.append(np.degrees(2 * np.arctan(proc.camera.width / (2 * proc.camera.K[0, 0]))))
+            fov.append(proc.camera.hfov_deg)
     pooled_net, pooled_true = np.concatenate(network), np.concatenate(truth)
     slope = np.polyfit(pooled_true, pooled_net, 1)[0]
     ratio = np.array([np.mean(n - t) for n, t in zip(network, truth, strict=True)])

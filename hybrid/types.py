@@ -44,6 +44,12 @@ class Camera:
         """3x3 intrinsic matrix (float64)."""
         return np.array([[self.fx, 0, self.cx], [0, self.fy, self.cy], [0, 0, 1]], dtype=np.float64)
 
+    @property
+    def hfov_deg(self) -> float:
+        """Horizontal field of view in degrees (the angle across the image at the focal
+        length fx)."""
+        return float(np.degrees(2 * np.arctan(self.width / (2 * self.fx))))
+
     def resized(self, width: int, height: int) -> Camera:
         """The same camera for an image resized to width x height (pixel-centre convention)."""
         sx, sy = width / self.width, height / self.height

@@ -200,6 +200,14 @@ def test_camera_draw_within_configured_lens():
         assert abs(camera.cy - 63.5) <= config.principal_jitter * 128
 
 
+def test_camera_field_of_view_is_the_angle_across_the_image():
+    assert Camera(160, 128, 80.0, 80.0, 79.5, 63.5).hfov_deg == pytest.approx(90.0)
+    assert Camera(160, 128, 80.0 / np.sqrt(3), 80.0, 79.5, 63.5).hfov_deg == pytest.approx(120.0)
+    # resizing the image keeps the angle
+    assert Camera(160, 128, 50.0, 50.0, 79.5, 63.5).resized(320, 256).hfov_deg == pytest.approx(
+        Camera(160, 128, 50.0, 50.0, 79.5, 63.5).hfov_deg)
+
+
 def test_camera_seed_takes_that_seeds_camera_and_nothing_else(sim_config):
     pink = replace(sim_config, style="pink")
     dusk = replace(sim_config, style="dusk")
