@@ -54,7 +54,7 @@ from learned.frames import IMAGE_SUFFIXES, FrameSequence, check_fps
 from learned.infer import aggregate_intrinsics, infer_sequence
 from learned.model import DepthModel, load_depth_model
 from learned.travel import chain_relative, no_travel, travel_features
-from learned.view import view_values
+from learned.view import known_view, view_values
 
 log = logging.getLogger(__name__)
 
@@ -269,8 +269,9 @@ class _Run:
         config = self.models.coverage.config
         cues = [self.travel(count)]
         if config.field_of_view == "predicted":
-            cues.append(view_values(self.network_K(), self.size[1], self.size[0], count,
-                                    name=str(self.path(W.INTRINSICS))))
+            view = view_values(self.network_K(), self.size[1], self.size[0], count,
+                               name=str(self.path(W.INTRINSICS)))
+            cues.append(known_view(view) if config.view_hidden else view)
         if config.depth_scale:
             depth = self.depth()
             medians = np.concatenate([

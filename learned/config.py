@@ -345,6 +345,11 @@ class CoverageConfig:
     """Camera input of the per-frame network besides the depth: 'predicted' (the median
     intrinsics of the motion network's consecutive pairs, as `c2d2 run` has them), 'true' (the
     simulator's camera, an ablation) or 'none' (learned.view)."""
+    view_hidden: float = 0.0
+    """Training with a field of view: the chance that it is hidden, given as unknown (a third
+    value, 'known', 0: learned.view.hidden_view), for each stage-1 training frame and for each
+    procedure whose stage-2 features are computed; so that one network takes videos whose
+    camera is known and videos whose camera is not (0: always given, two values)."""
     depth_scale: bool = False
     """Give the per-frame network each frame's depth scale against its video's,
     log(median depth / the video's median of the frames' median depths), as one more cue
@@ -419,6 +424,10 @@ class CoverageConfig:
         if self.field_of_view not in ("none", "predicted", "true"):
             raise ValueError(f"field_of_view must be 'none', 'predicted' or 'true', got "
                              f"{self.field_of_view!r}")
+        if not 0 <= self.view_hidden < 1 or (self.view_hidden and self.field_of_view == "none"):
+            raise ValueError(f"view_hidden must be in [0, 1), and 0 without a field of view, "
+                             f"got {self.view_hidden} with field_of_view "
+                             f"{self.field_of_view!r}")
 
     @property
     def travel_size(self) -> int:
@@ -430,8 +439,13 @@ class CoverageConfig:
     def cue_size(self) -> int:
         """Per-frame values beside the depth: the travel, the field of view, the depth
         scale."""
-        return (self.travel_size + (VIEW_SIZE if self.field_of_view != "none" else 0)
-                + int(self.depth_scale))
+        return self.travel_size + self.view_size + int(self.depth_scale)
+
+    @property
+    def view_size(self) -> int:
+        """Per-frame field-of-view values: 0 without, 2, 3 with view_hidden (the 'known'
+        value)."""
+        return 0 if self.field_of_view == "none" else VIEW_SIZE + (self.view_hidden > 0)
 
     def travel_frames(self, fps: float) -> int:
         """The travel gap, the same time in frames of a video at `fps` (0: no travel input)."""

@@ -34,7 +34,7 @@ from learned.infer import DepthOutput, infer_sequence
 from learned.model import DepthModel
 from learned.train import input_name
 from learned.travel import chain_relative, no_travel, travel_features
-from learned.view import view_values
+from learned.view import known_view, view_values
 
 
 @dataclass
@@ -135,6 +135,8 @@ def procedure_samples(path: Path, config: CoverageConfig, depth_model: DepthMode
                   if config.field_of_view == "predicted"
                   else view_values(camera.K, camera.width, camera.height, 1, str(proc.path))[0])
         view = np.tile(values, (len(inputs), 1))
+        if config.view_hidden:
+            view = known_view(view)
     labels = np.array([[np.nan if v is None else v for v in truth.per_frame[pair_key(p)]]
                        for p in truth.delta_pairs], dtype=np.float32).T
     if frames_only:

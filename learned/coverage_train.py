@@ -16,7 +16,7 @@ from __future__ import annotations
 import json
 import logging
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -34,6 +34,7 @@ from learned.coverage_nets import MIRRORS, CoverageModel, load_coverage_model, m
 from learned.device import device_of
 from learned.model import load_depth_model
 from learned.train import expand_inputs
+from learned.view import hidden_view
 
 logger = logging.getLogger(__name__)
 
@@ -78,7 +79,8 @@ def train_frame_net(model: CoverageModel, samples: list[ProcedureSamples], log,
     Depth maps are flipped left-right and up-down at random, the travel direction's x and y
     with them: a mirrored colon is covered alike. With `depth_power`, each map is also raised
     to a random power (its normalised input scaled), as the depth network's maps are
-    compressed or stretched.
+    compressed or stretched. With `view_hidden`, each frame's field of view is hidden at that
+    chance.
     """
     config, device = model.config, device_of(model)
     inputs = np.concatenate([s.inputs for s in samples])
@@ -106,6 +108,10 @@ def train_frame_net(model: CoverageModel, samples: list[ProcedureSamples], log,
                         torch.from_numpy(cues[ids]).to(device),
                         torch.from_numpy(rng.random((len(ids), 2)) < 0.5).to(device),
                         config.travel_size)
+        if config.view_hidden:
+            hide = torch.from_numpy(rng.random(len(ids)) < config.view_hidden).to(device)
+            view = slice(config.travel_size, config.travel_size + config.view_size)
+            m[:, view] = torch.where(hide[:, None], 0.0, m[:, view])
         if config.depth_power:
             u = rng.uniform(-config.depth_power, config.depth_power, len(ids))
             x = powered(x, torch.from_numpy(np.exp(u).astype(np.float32)).to(device))
@@ -186,10 +192,14 @@ def train_segment_net(model: CoverageModel, samples: list[ProcedureSamples],
 def fit_model(samples: list[ProcedureSamples], config: CoverageConfig, log,
               progress: bool = False, device: torch.device | str = "cpu",
               frame_samples: list[ProcedureSamples] = ()) -> CoverageModel:
-    """Both stages on the given procedures, on `device`; stage 1 also on frame_samples."""
+    """Both stages on the given procedures, on `device`; stage 1 also on frame_samples. With
+    `view_hidden`, stage 2 sees each procedure's field of view hidden at that chance."""
     torch.manual_seed(config.seed)
     model = CoverageModel(config).to(device)
     train_frame_net(model, [*samples, *frame_samples], log, progress)
+    hide = np.random.default_rng([config.seed, 3]).random(len(samples)) < config.view_hidden
+    samples = [replace(s, view=hidden_view(len(s.view))) if h else s
+               for s, h in zip(samples, hide, strict=True)]
     features = [model.frame_outputs(s.inputs, s.cues)[1] for s in samples]
     train_segment_net(model, samples, features, log, progress)
     return model

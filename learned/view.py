@@ -5,6 +5,8 @@ wide its camera is (the simulated cameras span 90-130 degrees). Two numbers per 
 tangents of the half-angles across and down the image, log(W / 2 fx) and log(H / 2 fy), which
 do not depend on the resolution the intrinsics are given at. The principal point is taken to be
 central (the simulator's is; the motion network's lies within a few per cent of the centre).
+Networks trained with `view_hidden` take a third value, 1 where the field of view is known;
+where it is not, all three are 0.
 """
 
 from __future__ import annotations
@@ -27,3 +29,15 @@ def view_values(K: np.ndarray, width: int, height: int, frames: int,
                          f"got {K.tolist()}")
     values = np.log([width / (2 * K[0, 0]), height / (2 * K[1, 1])])
     return np.tile(values.astype(np.float32), (frames, 1))
+
+
+def known_view(view: np.ndarray) -> np.ndarray:
+    """(frames, 3) float32: field-of-view values (frames, 2) and a third value, 'known', 1: the
+    input of networks trained with view_hidden."""
+    return np.concatenate([view, np.ones((len(view), 1))], axis=1).astype(np.float32)
+
+
+def hidden_view(frames: int) -> np.ndarray:
+    """(frames, 3) float32 zeros: the input of networks trained with view_hidden for a camera
+    whose field of view is not known ('known' 0)."""
+    return np.zeros((frames, VIEW_SIZE + 1), dtype=np.float32)

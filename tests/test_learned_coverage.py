@@ -49,7 +49,7 @@ from learned.frames import open_sequence
 from learned.infer import infer_sequence
 from learned.model import DepthModel
 from learned.travel import travel_features
-from learned.view import view_values
+from learned.view import hidden_view, known_view, view_values
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 
@@ -172,6 +172,46 @@ def test_per_frame_net_learns_from_the_field_of_view_what_depth_cannot_tell():
         train_frame_net(model, given, lambda e: None)
         errors[field_of_view] = frame_loss(model, given)
     assert errors["true"] < 0.5 * errors["none"], errors
+
+
+def test_a_net_trained_with_the_field_of_view_sometimes_hidden_serves_both_cases():
+    """The toy labels of the test above. Trained with view_hidden, the network reads the field
+    of view where it is given (nearly as well as one that always has it) and, where it is
+    hidden, errs about as much as one that never had it, not as a network given a wrong one."""
+    samples = toy_samples(count=4, seed=5)
+    widths = np.log(np.tan(np.radians([45.0, 55.0, 60.0, 65.0])))
+    scaled = [replace(s, view=known_view(np.tile(np.float32([w, w - 0.2]), (len(s.inputs), 1))),
+                      frame_labels=s.frame_labels * (0.5 + 0.6 * w))
+              for s, w in zip(samples, widths, strict=True)]
+    errors = {}
+    for hidden in (0.0, 0.5):
+        torch.manual_seed(0)
+        config = replace(SMALL, field_of_view="true", view_hidden=hidden)
+        model = CoverageModel(config)
+        given = [replace(s, view=s.view[:, :config.view_size]) for s in scaled]
+        train_frame_net(model, given, lambda e: None)
+        errors[hidden, "known"] = frame_loss(model, given)
+        errors[hidden, "hidden"] = frame_loss(model, [
+            replace(s, view=hidden_view(len(s.view))[:, :config.view_size]) for s in given])
+    torch.manual_seed(0)
+    none = CoverageModel(SMALL)
+    train_frame_net(none, [replace(s, view=s.view[:, :0]) for s in scaled], lambda e: None)
+    errors["none"] = frame_loss(none, [replace(s, view=s.view[:, :0]) for s in scaled])
+    assert errors[0.5, "known"] < 0.5 * errors["none"], errors
+    assert errors[0.5, "hidden"] < 1.3 * errors["none"], errors
+    assert errors[0.0, "hidden"] > 2 * errors[0.5, "hidden"], errors
+
+
+def test_view_hidden_needs_a_field_of_view_and_adds_the_known_value():
+    assert replace(SMALL, field_of_view="true", view_hidden=0.5).cue_size == \
+        replace(SMALL, field_of_view="true").cue_size + 1
+    for bad in ({"view_hidden": 0.5}, {"field_of_view": "true", "view_hidden": 1.0},
+                {"field_of_view": "true", "view_hidden": -0.1}):
+        with pytest.raises(ValueError, match="view_hidden"):
+            replace(SMALL, **bad)
+    view = known_view(view_values(np.diag([80.0, 32.0, 1.0]), 160, 128, 2))
+    assert view.shape == (2, 3) and view[:, 2].tolist() == [1.0, 1.0]
+    assert hidden_view(2).tolist() == [[0.0, 0.0, 0.0]] * 2
 
 
 def test_per_frame_net_learns_from_the_depth_scale_what_normalised_depth_cannot_tell():
