@@ -61,7 +61,11 @@ def self_calibrated(paths: list[Path], procedures: list[Path], head: np.ndarray,
             for k, v in json.loads(path.read_text())["self_calibration"].items()}
     values, agreed = head.copy(), np.zeros(len(procedures), bool)
     for k, proc in enumerate(procedures):
-        run = runs[f"{proc.parent.name}/{proc.name}"]
+        name = f"{proc.parent.name}/{proc.name}"
+        if name not in runs:
+            raise SystemExit(f"{name}: not in the self-calibration JSONs "
+                             f"{', '.join(map(str, paths))}; self-calibrate it first")
+        run = runs[name]
         if run["K"] is not None and len(run["agreeing"]) >= min_agreeing:
             (height, width), K = run["size"], np.asarray(run["K"])
             values[k], agreed[k] = np.log([width / (2 * K[0, 0]), height / (2 * K[1, 1])]), True
@@ -143,6 +147,8 @@ def main() -> None:
     fallbacks = {}
     if args.without:
         other = load_coverage_model(args.without)
+        if other.config.field_of_view != "none":
+            parser.error(f"--without {args.without}: it reads the field of view")
         fallbacks["without"] = [evaluate(other, [s]) for s in load_samples(
             paths, other.config, args.depth_checkpoint)]
     if model.config.view_hidden:
@@ -166,6 +172,7 @@ def main() -> None:
         row(f"log-normal {spread:g} ({args.draws} draws)",
             [true - rng.normal(0, spread, (len(true), 1)) for _ in range(args.draws)])
     row("one for all (the mean)", [np.tile(true.mean(axis=0), (len(true), 1))])
+
 
 if __name__ == "__main__":
     main()
