@@ -16,8 +16,9 @@ replaced by:
   with the given spreads (an unbiased but noisy estimate; the mean over `--draws` seeded
   draws); one field of view for every procedure, the mean true one of the procedures scored
   (what the input gives when it reads nothing of the camera).
-For each it prints the mean relative fx error of the input, the per-frame MAE of the three
-Δ pairs and the per-segment MAE (calibrated, as `c2d2 eval-coverage`).
+For each it prints the input's mean relative focal-length error (of fx and fy; column "fx
+error") over the procedures given it, the per-frame MAE of the three Δ pairs and the
+per-segment MAE (calibrated, as `c2d2 eval-coverage`).
 
     python benchmarks/view_sensitivity.py --data data/heldout \
         --model data/runs/cov72-fold0-bf16-log-fov.safetensors [--sweep] \
@@ -49,7 +50,8 @@ SPREADS = (0.03, 0.05, 0.1, 0.2)
 
 
 def fx_error(view: np.ndarray, true: np.ndarray) -> float:
-    """Mean relative fx error of field-of-view values (log(W / 2 fx) per procedure)."""
+    """Mean relative focal-length error (fx and fy) of field-of-view values (log(W / 2 fx),
+    log(H / 2 fy) per procedure)."""
     return float(np.mean(np.abs(np.exp(true - view) - 1)))
 
 
