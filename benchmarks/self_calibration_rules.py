@@ -9,7 +9,7 @@ those and of the intrinsics head on the same procedures, and the fx error of wha
 (the self-calibrated K where there is one, else the head's). Each --agreement /
 --min-agreeing pair is applied to the same recorded stretches.
 
-    .venv/bin/python benchmarks/self_calibration_rules.py --eval EVAL.json \\
+    .venv/bin/python benchmarks/self_calibration_rules.py --eval EVAL.json [EVAL2.json ...] \\
         --agreement 0.1 0.15 0.2 --min-agreeing 1 2 3
 """
 
@@ -50,13 +50,18 @@ def print_stretches(found: dict[str, SelfCalibration], fx_true: dict[str, float]
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--eval", type=Path, required=True)
+    parser.add_argument("--eval", type=Path, nargs="+", required=True,
+                        help="one or more JSONs (of different procedures), pooled")
     parser.add_argument("--data-root", type=Path, default=Path("data"),
                         help="folder holding the datasets the JSON's names refer to")
     parser.add_argument("--agreement", type=float, nargs="+", default=None)
     parser.add_argument("--min-agreeing", type=int, nargs="+", default=None)
     args = parser.parse_args()
-    scored = json.loads(args.eval.read_text())
+    scored = {"procedures": {}, "self_calibration": {}}
+    for path in args.eval:
+        run = json.loads(path.read_text())
+        for key in scored:
+            scored[key] |= run[key]
     found = {name: SelfCalibration.from_record(record)
              for name, record in scored["self_calibration"].items()}
     recorded = next(iter(found.values())).config
