@@ -126,25 +126,26 @@ def main() -> None:
         view = np.tile(values, (len(s.view), 1)).astype(np.float32)
         return replace(s, view=known_view(view) if model.config.view_hidden else view)
 
-    def row(name: str, views: list[np.ndarray], use: np.ndarray | None = None,
-            rest: Predictions | None = None) -> None:
-        """Print the input's fx error on the procedures in `use` (all by default) and the
-        metrics, each the mean over `views` (draws), with `rest`: the other procedures'
-        predictions."""
-        use = np.ones(len(true), bool) if use is None else use
-        metrics = []
-        for view in views:
-            scored = evaluate(model, [given(s, v) for s, v, u in zip(samples, view, use,
-                                                                       strict=True) if u])
-            scored.extend(rest or Predictions())
-            metrics.append(coverage_metrics(scored))
-        error = np.mean([fx_error(v[use], true[use]) for v in views]) if use.any() else np.nan
-        print(f"{name:44} {error:8.3f}  " + "  ".join(
+    def each(view: np.ndarray) -> list[Predictions]:
+        """The model's predictions on each procedure given its field-of-view values (P, 2)."""
+        return [evaluate(model, [given(s, v)]) for s, v in zip(samples, view, strict=True)]
+
+    def row(name: str, draws: list[tuple[float, list[Predictions]]]) -> None:
+        """Print the input's focal-length error and the metrics of per-procedure predictions,
+        each the mean over the draws."""
+        metrics = [coverage_metrics(pooled(d)) for _, d in draws]
+        print(f"{name:44} {np.mean([e for e, _ in draws]):8.3f}  " + "  ".join(
             f"{np.mean([m[k] for m in metrics]):7.4f}" for k in keys)
             + f"  {np.mean([m['segment_mae'] for m in metrics]):7.4f}", flush=True)
 
-    row("true", [true])
-    row("intrinsics head", [head])
+    def mixed(use: np.ndarray, chosen: list[Predictions], rest: list[Predictions]
+              ) -> list[Predictions]:
+        """chosen's predictions on the procedures in `use`, rest's on the others."""
+        return [c if u else r for c, r, u in zip(chosen, rest, use, strict=True)]
+
+    true_each = each(true)
+    row("true", [(0.0, true_each)])
+    row("intrinsics head", [(fx_error(head, true), each(head))])
     # What the procedures without an agreed self-calibration get instead of the head's.
     fallbacks = {}
     if args.without:
@@ -155,26 +156,30 @@ def main() -> None:
             paths, other.config, args.depth_checkpoint)]
     if model.config.view_hidden:
         fallbacks["hidden"] = [evaluate(model, [given(s, None)]) for s in samples]
-    for label, each in fallbacks.items():
-        row(f"{label}, all", [true], np.zeros(len(true), bool), pooled(each))
+    for label, rest in fallbacks.items():
+        row(f"{label}, all", [(np.nan, rest)])
     for least in args.min_agreeing if args.self_calibration else ():
         chosen, agreed = self_calibrated(args.self_calibration, paths, head, least)
         used = f"{agreed.sum()} with >= {least} agreeing"
-        row(f"self-calibrated ({used}), else head", [chosen])
-        for label, each in fallbacks.items():
-            rest = pooled([e for e, a in zip(each, agreed, strict=True) if not a])
-            row(f"self-calibrated ({used}), else {label}", [chosen], agreed, rest)
-            row(f"true ({used}), else {label}", [true], agreed, rest)
+        chosen_each = each(chosen)
+        row(f"self-calibrated ({used}), else head", [(fx_error(chosen, true), chosen_each)])
+        error = fx_error(chosen[agreed], true[agreed]) if agreed.any() else np.nan
+        for label, rest in fallbacks.items():
+            row(f"self-calibrated ({used}), else {label}",
+                [(error, mixed(agreed, chosen_each, rest))])
+            row(f"true ({used}), else {label}", [(0.0, mixed(agreed, true_each, rest))])
     if not args.sweep:
         return
     for factor in FACTORS:
-        row(f"fx x {factor:g}", [true - np.log(factor)])
+        row(f"fx x {factor:g}", [(fx_error(true - np.log(factor), true),
+                                   each(true - np.log(factor)))])
     rng = np.random.default_rng(0)
     for spread in SPREADS:
+        draws = [true - rng.normal(0, spread, (len(true), 1)) for _ in range(args.draws)]
         row(f"log-normal {spread:g} ({args.draws} draws)",
-            [true - rng.normal(0, spread, (len(true), 1)) for _ in range(args.draws)])
-    row("one for all (the mean)", [np.tile(true.mean(axis=0), (len(true), 1))])
-
+            [(fx_error(d, true), each(d)) for d in draws])
+    constant = np.tile(true.mean(axis=0), (len(true), 1))
+    row("one for all (the mean)", [(fx_error(constant, true), each(constant))])
 
 if __name__ == "__main__":
     main()
