@@ -37,6 +37,12 @@ Contrast = Annotated[float | None, typer.Option(
     min=0, help="With --self-calibrate: the clip limit of the CLAHE on each frame's lightness "
     "before SIFT (0: the frames as they are; default: fusion.self_calibration's, 3).")]
 
+ViewSelfCalibrate = Annotated[bool, typer.Option(
+    "--self-calibrate", help="Give coverage networks trained with field_of_view=true and "
+    "view_hidden the video's field of view, by structure from motion on up to 5 stretches of "
+    "120 frames where at least 3 agree (1-7 minutes a video on 2 CPU cores; "
+    "self_calibration.json); otherwise they run with it hidden. The geometric branch keeps "
+    "the intrinsics head's K.")]
 PipelineDepth = Annotated[Path | None, typer.Option(help="Depth model (default: shipped).")]
 PipelineCoverage = Annotated[Path | None, typer.Option(
     help="Coverage model, e.g. one adapted with `c2d2 adapt` (default: shipped); it must read "
@@ -190,6 +196,7 @@ def run(
                                             "(the look-ahead band lies where the camera is "
                                             "going; both branches).")] = False,
     segment_seconds: Annotated[float, typer.Option(help="Segment length.")] = 10.0,
+    self_calibrate: ViewSelfCalibrate = False,
     device: Device = "auto",
 ):
     """The whole pipeline on one video: coverage.json/.csv, mesh.ply, maps/, report.html."""
@@ -200,7 +207,7 @@ def run(
 
     config = RunConfig(depth_checkpoint=_opt(depth_checkpoint),
                        coverage_checkpoint=_opt(coverage_checkpoint), fps=fps,
-                       segment_seconds=segment_seconds)
+                       segment_seconds=segment_seconds, self_calibrate=self_calibrate)
     if insertion:
         rec = config.reconstruction
         config = replace(config, reconstruction=replace(
@@ -250,6 +257,7 @@ def eval_pipeline(
     out: Annotated[Path, typer.Option(help="Work folders per procedure and eval.json.")],
     depth_checkpoint: PipelineDepth = None,
     coverage_checkpoint: PipelineCoverage = None,
+    self_calibrate: ViewSelfCalibrate = False,
     device: Device = "auto",
 ):
     """MAE of learned, geometric and combined coverage against the truth, and the branches'
@@ -261,7 +269,8 @@ def eval_pipeline(
     from learned.train import expand_inputs
 
     config = RunConfig(depth_checkpoint=_opt(depth_checkpoint),
-                       coverage_checkpoint=_opt(coverage_checkpoint))
+                       coverage_checkpoint=_opt(coverage_checkpoint),
+                       self_calibrate=self_calibrate)
     models = Models.load(config, pick_device(device))
     procedures = [Procedure.open(p) for p in expand_inputs(data)]
     summary = evaluate_pipeline(procedures, out, config, models, echo=typer.echo)
@@ -568,24 +577,37 @@ def eval_coverage(
                                                "one).")] = None,
     depth_checkpoint: Annotated[Path | None, typer.Option(help="Depth model (default: the "
                                                           "shipped one).")] = None,
+    view_hidden: Annotated[bool, typer.Option(
+        "--view-hidden", help="Score networks trained with view_hidden with the field of view "
+        "hidden, as `c2d2 run` gives it them without a self-calibrated one (otherwise they "
+        "read the simulator's).")] = False,
     device: Device = "auto",
 ):
     """Per-frame MAE per Δ pair, per-segment MAE, bias and 3-class accuracy, deficient
     segments found (recall, precision), with scatter plots."""
+    from dataclasses import replace
+
     from learned.coverage_eval import coverage_metrics, format_table, scatter_plots
     from learned.coverage_nets import load_coverage_model
     from learned.coverage_train import evaluate, load_samples
     from learned.device import pick_device
+    from learned.view import hidden_view
 
     model_path, device = model or _shipped_coverage(), pick_device(device)
     net = load_coverage_model(model_path, device=device)
+    if view_hidden and not net.config.view_hidden:
+        raise InputError(f"--view-hidden: {model_path} was not trained with view_hidden, so "
+                         f"it cannot run with its field of view hidden")
     samples = load_samples(data, net.config, depth_checkpoint or _shipped_checkpoint(),
                            progress=True, device=device)
+    if view_hidden:
+        samples = [replace(s, view=hidden_view(len(s.view))) for s in samples]
     predictions = evaluate(net, samples)
     metrics = coverage_metrics(predictions)
     out.mkdir(parents=True, exist_ok=True)
     (out / "metrics.json").write_text(json.dumps(
-        {"model": str(model_path), "data": [str(p) for p in data], **metrics}, indent=1) + "\n")
+        {"model": str(model_path), "data": [str(p) for p in data], "view_hidden": view_hidden,
+         **metrics}, indent=1) + "\n")
     scatter_plots(predictions, out / "scatter.png", f"{model_path.name} on "
                   f"{', '.join(p.name for p in data)}")
     typer.echo(format_table({model_path.stem: metrics}))
@@ -606,6 +628,7 @@ def adapt(
     source: Annotated[list[Path] | None, typer.Option(
         help="Synthetic videos or procedures the model was NOT trained on: their windows "
              "replace the training windows as CORAL's source statistics.")] = None,
+    self_calibrate: ViewSelfCalibrate = False,
     device: Device = "auto",
 ):
     """Fit CORAL on unlabelled target videos and save the adapted coverage model.
@@ -631,7 +654,7 @@ def adapt(
         raise InputError(f"folder for --out does not exist: {out.parent}")
     config = RunConfig(depth_checkpoint=_opt(depth_checkpoint),
                        coverage_checkpoint=str(model or _shipped_coverage()),
-                       segment_seconds=segment_seconds)
+                       segment_seconds=segment_seconds, self_calibrate=self_calibrate)
     models = Models.load(config, pick_device(device))
     T, stride = models.coverage.config.segment_frames, models.coverage.config.segment_stride
 

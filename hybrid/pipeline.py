@@ -1,10 +1,11 @@
 """The whole C2D2 pipeline on one recorded video, stage by stage, in a work directory.
 
-ingest -> depth (learned depth, K, relative poses) -> pose graph (the relative poses refined
-by RGB-D odometry, then smoothed) -> reconstruction (scale,
-TSDF mesh, lumen) -> geometric coverage (+ unrolled maps) -> learned coverage -> cross-check
-and report. Each stage writes its files (hybrid.workdir) atomically and is skipped when they
-exist, so an interrupted run resumes where it stopped. Long arrays (frames, depth) are written
+ingest -> depth (learned depth, K, relative poses) -> [self-calibration] -> pose graph (the
+relative poses refined by RGB-D odometry, then smoothed) -> reconstruction (scale, TSDF mesh,
+lumen) -> geometric coverage (+ unrolled maps) -> learned coverage -> cross-check and report.
+The self-calibration runs only when asked for (`RunConfig.self_calibrate`). Each stage writes
+its files (hybrid.workdir) atomically and is skipped when they exist, so an interrupted run
+resumes where it stopped. Long arrays (frames, depth) are written
 and read in blocks (hybrid.npyio), so memory does not grow with the video's length.
 
 Segments are cut by time (`segment_seconds`) at the video's own frame rate; the per-segment
@@ -30,6 +31,7 @@ import torch
 
 from fusion.odometry import OdometryConfig, refine_relative_poses
 from fusion.posegraph import PoseGraphConfig, smooth_trajectory
+from fusion.self_calibration import SelfCalibration, SelfCalibrationConfig, calibrate_sequence
 from hybrid import __version__
 from hybrid import workdir as W
 from hybrid.coverage import DELTA_PAIRS_CM
@@ -54,7 +56,7 @@ from learned.frames import IMAGE_SUFFIXES, FrameSequence, check_fps
 from learned.infer import aggregate_intrinsics, infer_sequence
 from learned.model import DepthModel, load_depth_model
 from learned.travel import chain_relative, no_travel, travel_features
-from learned.view import known_view, view_values
+from learned.view import hidden_view, known_view, view_values
 
 log = logging.getLogger(__name__)
 
@@ -81,6 +83,16 @@ class RunConfig:
     """The geometric coverage's weight against the learned one's in the combined coverage, at
     full support (hybrid.crosscheck.combined_coverage): chosen on data/heldout and checked on
     data/heldout2 (docs/pipeline.md, "The branches' weights in the combined coverage")."""
+    self_calibrate: bool = False
+    """Map stretches of the video by structure from motion (fusion.self_calibration, minutes
+    a video) for the field of view of coverage networks trained with field_of_view 'true' and
+    view_hidden, which otherwise run with it hidden. The geometric branch keeps the
+    intrinsics head's K."""
+    self_calibration: SelfCalibrationConfig = field(
+        default_factory=lambda: SelfCalibrationConfig(min_agreeing=3))
+    """Its stretches, and the consensus it needs: 3 agreeing stretches, the bound chosen on the
+    training procedures' self-calibration (docs/coverage.md, "Reading the field of view at
+    inference"), where `c2d2 depth --self-calibrate` takes 2."""
     odometry: OdometryConfig = field(default_factory=OdometryConfig)
     posegraph: PoseGraphConfig = field(default_factory=PoseGraphConfig)
     reconstruction: ReconstructionConfig = field(default_factory=ReconstructionConfig)
@@ -111,10 +123,18 @@ class Models:
         depth = Path(config.depth_checkpoint or SHIPPED_DEPTH)
         coverage = Path(config.coverage_checkpoint or SHIPPED_COVERAGE)
         coverage_model = load_coverage_model(coverage, device=device)
-        if coverage_model.config.field_of_view == "true":
-            raise InputError(f"{coverage}: these coverage networks read the simulator's true "
-                             f"field of view (an ablation), which a video does not have; use "
-                             f"networks trained with field_of_view 'predicted' or 'none'")
+        reads_view = coverage_model.config.field_of_view == "true"
+        if reads_view and not coverage_model.config.view_hidden:
+            raise InputError(f"{coverage}: these coverage networks always read the simulator's "
+                             f"true field of view (an ablation), which a video does not have; "
+                             f"use networks trained with field_of_view 'predicted' or 'none', "
+                             f"or 'true' with view_hidden")
+        if config.self_calibrate and not reads_view:
+            raise InputError(f"{coverage}: self-calibration gives the coverage networks the "
+                             f"video's field of view, and these networks do not take it "
+                             f"(field_of_view {coverage_model.config.field_of_view!r}); use "
+                             f"networks trained with field_of_view 'true' and view_hidden, or "
+                             f"run without self-calibration")
         return cls(load_depth_model(depth, device=device), coverage_model,
                    {"depth": file_tag(depth), "coverage": file_tag(coverage)})
 
@@ -204,6 +224,10 @@ class _Run:
             result.K_pairs, self.size, seq.crop, seq.fps))
         depth.close()  # last: its presence marks the stage complete
 
+    def self_calibration(self) -> None:
+        found = calibrate_sequence(self.sequence(), self.config.self_calibration, self.progress)
+        W.write_json(self.path(W.SELF_CALIBRATION), found.record())
+
     def posegraph(self) -> None:
         with np.load(self.path(W.RELATIVE)) as data:
             relative = {int(k[3:]): data[k] for k in data.files
@@ -264,14 +288,19 @@ class _Run:
 
     def cues(self, count: int) -> np.ndarray:
         """(N, cue_size): the coverage model's values beside each frame's depth, the travel
-        and (if it reads them) the field of view of the network's intrinsics and the frames'
-        depth scale against the video's."""
+        and (if it reads them) the field of view (of the network's intrinsics, or
+        `self_calibrated_K` for networks trained on the true one) and the frames' depth scale
+        against the video's."""
         config = self.models.coverage.config
         cues = [self.travel(count)]
         if config.field_of_view == "predicted":
             view = view_values(self.network_K(), self.size[1], self.size[0], count,
                                name=str(self.path(W.INTRINSICS)))
             cues.append(known_view(view) if config.view_hidden else view)
+        elif config.field_of_view == "true":
+            K = self.self_calibrated_K()
+            cues.append(hidden_view(count) if K is None else known_view(view_values(
+                K, self.size[1], self.size[0], count, name=str(self.path(W.SELF_CALIBRATION)))))
         if config.depth_scale:
             depth = self.depth()
             medians = np.concatenate([
@@ -305,9 +334,13 @@ class _Run:
         values = model.segment_outputs(resampled, [k * T for k in range(count)])
         segments = [{"index": k, "start": k * L, "stop": (k + 1) * L,
                      "coverage": float(values[k])} for k in range(count)]
-        W.write_json(self.path(W.LEARNED), {
-            "delta_pairs_cm": [list(p) for p in DELTA_PAIRS_CM],
-            "per_frame": per_frame.round(5).tolist(), "segments": segments})
+        record = {"delta_pairs_cm": [list(p) for p in DELTA_PAIRS_CM],
+                  "per_frame": per_frame.round(5).tolist(), "segments": segments}
+        if model.config.field_of_view == "true":
+            K = self.self_calibrated_K()
+            record["field_of_view"] = {"source": "hidden"} if K is None else {
+                "source": "self-calibration", "fx": float(K[0, 0]), "fy": float(K[1, 1])}
+        W.write_json(self.path(W.LEARNED), record)
 
     def report(self) -> None:
         from hybrid.report import write_report
@@ -319,6 +352,18 @@ class _Run:
     def network_K(self) -> np.ndarray:
         return read_network_K(self.out, *self.size)
 
+    def self_calibration_record(self) -> SelfCalibration | None:
+        """The self-calibration stage's stretches under the run's rule (None when it is off)."""
+        if not self.config.self_calibrate:
+            return None
+        record = json.loads(self.path(W.SELF_CALIBRATION).read_text())
+        return SelfCalibration.from_record(record, self.config.self_calibration)
+
+    def self_calibrated_K(self) -> np.ndarray | None:
+        """K at the networks' size where the self-calibration's stretches agree, else None."""
+        found = self.self_calibration_record()
+        return None if found is None else found.K
+
 
 def _percentiles(values: np.ndarray, q: tuple[float, ...]) -> list[float] | None:
     """The q-th percentiles of the finite values, rounded (None if there are none)."""
@@ -328,8 +373,9 @@ def _percentiles(values: np.ndarray, q: tuple[float, ...]) -> list[float] | None
 
 def video_features(source: Path, work: Path, config: RunConfig, models: Models,
                    progress: bool = True) -> tuple[np.ndarray, int]:
-    """The ingest and depth stages of `run_video` (resumable, in `work`), then the per-frame
-    coverage features (N, 4, F); returns them with the frames per segment."""
+    """The ingest, depth and (if on) self-calibration stages of `run_video` (resumable, in
+    `work`), then the per-frame coverage features (N, 4, F); returns them with the frames per
+    segment."""
     source, work = Path(source), Path(work)
     _prepare(work, config, source, models)
     run = _Run(source, work, config, models, None, progress)
@@ -338,6 +384,8 @@ def video_features(source: Path, work: Path, config: RunConfig, models: Models,
     run.check_length()
     if not (work / W.DEPTH).is_file():
         run.depth_stage()
+    if config.self_calibrate and not (work / W.SELF_CALIBRATION).is_file():
+        run.self_calibration()
     return run.frame_outputs()[1], run.segment_frames
 
 
@@ -379,6 +427,8 @@ def run_video(source: Path, out: Path, config: RunConfig = RunConfig(),
     stages: list[tuple[str, Callable[[], None], list[str]]] = [
         ("ingest", run.ingest, [W.FRAMES, W.INGEST, W.REGION]),
         ("depth", run.depth_stage, [W.DEPTH, W.RELATIVE, W.INTRINSICS]),
+        *([("self-calibration", run.self_calibration, [W.SELF_CALIBRATION])]
+          if config.self_calibrate else []),
         ("posegraph", run.posegraph, [W.POSES]),
         ("reconstruction", run.reconstruction, [W.RECONSTRUCTION]),
         ("geometric", run.geometric, [W.GEOMETRIC]),
@@ -412,6 +462,10 @@ def run_video(source: Path, out: Path, config: RunConfig = RunConfig(),
         warnings.append(run.ingested.decode_warning)
     if geometric_error.is_file():
         warnings.append(f"geometric branch failed at {geometric_error.read_text().strip()}")
+    calibration = run.self_calibration_record()
+    if calibration is not None and calibration.K is None:
+        warnings.append(f"self-calibration found no field of view, so the coverage networks "
+                        f"ran without it: {calibration.describe()}")
     if (out / W.ODOMETRY).is_file():
         kept = json.loads((out / W.ODOMETRY).read_text())["pairs_kept_unrefined"]
         if any(kept.values()):

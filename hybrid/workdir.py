@@ -22,6 +22,9 @@ RELATIVE = "relative_poses.npz"
 """Relative poses per frame gap ('gap1', 'gap2', ...): camera t -> camera t+g."""
 INTRINSICS = "intrinsics.json"
 """K at the networks' size and in the input's pixels, with its spread."""
+SELF_CALIBRATION = "self_calibration.json"
+"""Structure from motion on stretches of the frames (fusion.self_calibration's record), when
+the run self-calibrates the coverage networks' field of view."""
 ODOMETRY = "odometry.json"
 """Per gap, how many relative poses RGB-D odometry could not refine (kept as inferred), and the
 5th percentile and median of the refined pairs' fitness (fraction of pixels that found a

@@ -24,6 +24,7 @@ from learned.checkpoint import save_checkpoint
 from learned.config import COVERAGE_PRESETS, CoverageConfig, coverage_config, parse_overrides
 from learned.coral import adapt, coral_transform, set_source
 from learned.coverage_data import procedure_samples
+from learned.coverage_eval import coverage_metrics
 from learned.coverage_nets import (
     MIRRORS,
     CoverageModel,
@@ -36,9 +37,11 @@ from learned.coverage_nets import (
     resample_features,
 )
 from learned.coverage_train import (
+    evaluate,
     fold_predictions,
     fold_split,
     load_run,
+    load_samples,
     powered,
     regression_loss,
     run_samples,
@@ -487,8 +490,16 @@ def test_a_model_of_another_preset_is_an_input_error(tmp_path):
 def test_a_run_refuses_networks_that_read_the_true_field_of_view(tmp_path):
     path = tmp_path / "true-view.safetensors"
     CoverageModel(replace(SMALL, field_of_view="true")).save(path)
-    with pytest.raises(InputError, match="true field of view"):
+    with pytest.raises(InputError, match="always read the simulator's true field of view"):
         Models.load(RunConfig(coverage_checkpoint=str(path)))
+
+
+def test_a_run_refuses_to_self_calibrate_for_networks_without_the_field_of_view(tmp_path):
+    for view in ("none", "predicted"):
+        path = tmp_path / f"{view}.safetensors"
+        CoverageModel(replace(SMALL, field_of_view=view)).save(path)
+        with pytest.raises(InputError, match=f"do not take it \\(field_of_view '{view}'\\)"):
+            Models.load(RunConfig(coverage_checkpoint=str(path), self_calibrate=True))
 
 
 def test_coverage_config_overrides():
@@ -823,6 +834,44 @@ def test_eval_coverage_with_a_depth_checkpoint_as_model(tmp_path, two_procedures
     result = runner.invoke(app, ["eval-coverage", "--data", str(two_procedures), "--out",
                                  str(tmp_path / "e"), "--model", str(depth)])
     assert_clean_error(result, "depth.safetensors", "not a 'coverage'")
+
+
+def test_eval_coverage_scores_view_hidden_networks_with_the_field_of_view_hidden(
+        tmp_path, two_procedures):
+    """The default reads the simulator's field of view; --view-hidden scores what a run
+    without a self-calibrated one gives (the 'known' value 0 too); a network not trained
+    with view_hidden cannot take it."""
+    import json
+
+    depth = save_model(tmp_path / "depth.safetensors", DepthModel(TINY), TINY.to_dict())
+    torch.manual_seed(0)
+    model = CoverageModel(replace(SMALL, field_of_view="true", view_hidden=0.5))
+    path = tmp_path / "view.safetensors"
+    model.save(path)
+    samples = load_samples([two_procedures], model.config, depth)
+    expected = {
+        hidden: coverage_metrics(evaluate(model, [
+            replace(s, view=hidden_view(len(s.view))) if hidden else s for s in samples]))
+        for hidden in (False, True)}
+    assert samples[0].view[:, 2].tolist() == [1.0] * len(samples[0].view)
+    scored = {}
+    for hidden in (False, True):
+        out = tmp_path / f"eval-{hidden}"
+        result = runner.invoke(app, ["eval-coverage", "--data", str(two_procedures), "--out",
+                                     str(out), "--model", str(path), "--depth-checkpoint",
+                                     str(depth)] + ["--view-hidden"] * hidden)
+        assert result.exit_code == 0, result.output
+        scored[hidden] = json.loads((out / "metrics.json").read_text())
+        assert scored[hidden]["view_hidden"] is hidden
+        for key in ("frame_mae_1-3", "frame_mae_1-4", "frame_mae_1-6", "segment_mae"):
+            assert scored[hidden][key] == pytest.approx(expected[hidden][key]), key
+    assert scored[True]["frame_mae_1-4"] != scored[False]["frame_mae_1-4"]
+    plain = tmp_path / "plain.safetensors"
+    CoverageModel(SMALL).save(plain)
+    result = runner.invoke(app, ["eval-coverage", "--data", str(two_procedures), "--out",
+                                 str(tmp_path / "e"), "--model", str(plain), "--view-hidden"])
+    assert_clean_error(result, "--view-hidden", "plain.safetensors",
+                       "not trained with view_hidden")
 
 
 def test_segments_of_another_frame_rate_are_resampled_to_the_window():

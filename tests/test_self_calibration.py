@@ -1,5 +1,6 @@
 """The focal length from structure from motion on stretches of frames (fusion.self_calibration),
-on the rendered tube of tests/tube_scene.py, and its use by `c2d2 depth` and eval-depth."""
+on the rendered tube of tests/tube_scene.py, and its use by `c2d2 depth`, eval-depth and
+`c2d2 run` (the coverage networks' field of view)."""
 
 from __future__ import annotations
 
@@ -24,11 +25,15 @@ from fusion.self_calibration import (
     stretch_starts,
 )
 from hybrid.cli import app
+from hybrid.pipeline import Models, RunConfig, _Run, video_features
 from hybrid.types import InputError
 from learned.checkpoint import save_checkpoint
+from learned.config import coverage_config
+from learned.coverage_nets import CoverageModel
 from learned.evaluate import evaluate_sequence
 from learned.frames import open_sequence
 from learned.model import DepthModel
+from learned.view import known_view, view_values
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 
@@ -328,3 +333,43 @@ def test_eval_depth_scores_the_K_it_is_given(clip):
     assert metrics["fx_pred"] == seq.camera.fx
     assert metrics["fx_head_rel"] == pytest.approx(
         abs(metrics["fx_head"] - seq.camera.fx) / seq.camera.fx)
+
+
+def test_a_run_gives_view_hidden_networks_the_self_calibrated_field_of_view(tmp_path,
+                                                                             tube_frames,
+                                                                             tube_checkpoint):
+    """Coverage networks trained on the true field of view with view_hidden: `c2d2 run`'s
+    self-calibration stage gives them the tube's (f = 80 px) where enough stretches agree;
+    without the stage, or without a consensus, they read it hidden, with a warning."""
+    folder = write_frames(tmp_path / "tube", tube_frames)
+    coverage = tmp_path / "view.safetensors"
+    torch.manual_seed(0)
+    CoverageModel(coverage_config("fast", field_of_view="true", view_hidden=0.5)).save(coverage)
+    base = RunConfig(depth_checkpoint=str(tube_checkpoint), coverage_checkpoint=str(coverage),
+                     segment_seconds=4.0)
+    two = replace(base, self_calibrate=True,
+                  self_calibration=SelfCalibrationConfig(min_agreeing=2))
+    runs = {}
+    for name, config in (("hidden", base), ("two", two),
+                         ("three", replace(base, self_calibrate=True))):
+        models = Models.load(config)
+        features, _ = video_features(folder, tmp_path / name, config, models, progress=False)
+        run = _Run(folder, tmp_path / name, config, models, None, False)
+        runs[name] = features, run.cues(len(features))[:, -3:], run.self_calibration_record()
+    # 240 frames hold two stretches: both map and agree on f, the tube's.
+    (features, view, found), crop = runs["two"], json.loads(
+        (tmp_path / "two" / "ingest.json").read_text())["crop"]
+    assert found.record()["agreeing"] == [0, 120]
+    # (Measured: 76.7 and 73.7 px, so 75.2, 6% short, on these frames as ingested; the
+    # mapper's own accuracy is the subject of the tests above.)
+    assert found.K[0, 0] == pytest.approx(FOCAL * WIDTH / crop["width"], rel=0.1)
+    np.testing.assert_allclose(view, known_view(view_values(found.K, WIDTH, HEIGHT, len(view))))
+    # Under the run's own rule (3 agreeing) they are too few, and not mapped at all.
+    assert runs["three"][2].K is None and runs["three"][2].stretches == []
+    for name in ("hidden", "three"):
+        assert not runs[name][1].any()
+        np.testing.assert_array_equal(runs[name][0], runs["hidden"][0])
+    assert np.abs(features - runs["hidden"][0]).max() > 1e-3  # the input reaches the network
+    assert runs["hidden"][2] is None
+    assert not (tmp_path / "hidden" / "self_calibration.json").exists()
+
