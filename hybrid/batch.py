@@ -48,12 +48,14 @@ def run_batch(folder: Path, out: Path, config: RunConfig | None = None, workers:
     """Run every video, the networks on `device`; returns the summary CSV's path."""
     config = config or RunConfig()
     videos = list_videos(folder)
+    # Loaded here whatever the workers, so that networks this configuration cannot run are
+    # refused before any video starts.
+    models = Models.load(config, device if workers == 1 else "cpu")
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     rows: dict[str, dict] = {}
     bar = tqdm(total=len(videos), desc="videos", unit="video", disable=not progress)
     if workers == 1:
-        models = Models.load(config, device)
         for video in videos:
             rows[video.name] = _run_one(video, out / video.name, config, models)
             _write_summary(out, videos, rows)

@@ -232,15 +232,18 @@ def batch(
     out: Annotated[Path, typer.Option(help="Output folder: one work folder per video and "
                                       "summary.csv; rerun to resume.")],
     workers: Annotated[int, typer.Option(min=1, help="Videos processed in parallel.")] = 1,
+    self_calibrate: ViewSelfCalibrate = False,
     device: Device = "auto",
 ):
     """Every video in a folder; failures are recorded per video while the rest go on."""
     import csv
 
     from hybrid.batch import run_batch
+    from hybrid.pipeline import RunConfig
     from learned.device import pick_device
 
-    summary = run_batch(folder, out, workers=workers, device=pick_device(device))
+    summary = run_batch(folder, out, RunConfig(self_calibrate=self_calibrate), workers=workers,
+                        device=pick_device(device))
     rows = list(csv.DictReader(summary.open()))
     failed = [r for r in rows if r["status"] == "failed"]
     for r in failed:

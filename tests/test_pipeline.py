@@ -365,6 +365,26 @@ def test_cli_refuses_a_partial_run_with_another_config(pipeline_run, procedure, 
     assert snapshot(work) == kept  # nothing deleted, nothing written
 
 
+def test_cli_refuses_to_self_calibrate_for_the_shipped_networks(pipeline_run, procedure,
+                                                                frames, tmp_path):
+    """The shipped coverage networks do not read a field of view: --self-calibrate is refused
+    before anything is written, by run and by batch (before any video starts, whatever the
+    workers)."""
+    out, _ = pipeline_run
+    work, kept = interrupted_copy(out, tmp_path)
+    result = runner.invoke(app, ["run", str(procedure.path), "--out", str(work),
+                                 "--self-calibrate"])
+    message = assert_input_error(result, "coverage-fast.safetensors")
+    assert "do not take it (field_of_view 'none')" in message
+    assert snapshot(work) == kept
+    videos = tmp_path / "videos"
+    videos.mkdir()
+    write_video(videos / "a.avi", frames[:110], FPS)
+    result = runner.invoke(app, ["batch", str(videos), "--out", str(tmp_path / "batch"),
+                                 "--workers", "2", "--self-calibrate"])
+    assert "do not take it" in assert_input_error(result, "coverage-fast.safetensors")
+    assert not (tmp_path / "batch").exists()
+
 def test_cli_refuses_a_partial_run_by_a_c2d2_without_a_setting(pipeline_run, procedure,
                                                               tmp_path):
     """A work folder whose configuration lacks a setting added since (its report was combined
