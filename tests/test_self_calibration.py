@@ -25,7 +25,7 @@ from fusion.self_calibration import (
     stretch_starts,
 )
 from hybrid.cli import app
-from hybrid.pipeline import Models, RunConfig, _Run, video_features
+from hybrid.pipeline import Models, RunConfig, _Run, run_video, video_features
 from hybrid.types import InputError
 from learned.checkpoint import save_checkpoint
 from learned.config import coverage_config
@@ -356,6 +356,11 @@ def test_a_run_gives_view_hidden_networks_the_self_calibrated_field_of_view(tmp_
         features, _ = video_features(folder, tmp_path / name, config, models, progress=False)
         run = _Run(folder, tmp_path / name, config, models, None, False)
         runs[name] = features, run.cues(len(features))[:, -3:], run.self_calibration_record()
+        run.learned()
+        assert json.loads((tmp_path / name / "learned.json").read_text())["field_of_view"] == (
+            {"source": "hidden"} if runs[name][2] is None or runs[name][2].K is None else
+            {"source": "self-calibration", "fx": runs[name][2].K[0, 0],
+             "fy": runs[name][2].K[1, 1]})
     # 240 frames hold two stretches: both map and agree on f, the tube's.
     (features, view, found), crop = runs["two"], json.loads(
         (tmp_path / "two" / "ingest.json").read_text())["crop"]
@@ -364,8 +369,14 @@ def test_a_run_gives_view_hidden_networks_the_self_calibrated_field_of_view(tmp_
     # mapper's own accuracy is the subject of the tests above.)
     assert found.K[0, 0] == pytest.approx(FOCAL * WIDTH / crop["width"], rel=0.1)
     np.testing.assert_allclose(view, known_view(view_values(found.K, WIDTH, HEIGHT, len(view))))
-    # Under the run's own rule (3 agreeing) they are too few, and not mapped at all.
+    # Under the run's own rule (3 agreeing) they are too few, and not mapped at all; the run,
+    # completed, says so.
     assert runs["three"][2].K is None and runs["three"][2].stretches == []
+    config = replace(base, self_calibrate=True)
+    result = run_video(folder, tmp_path / "three", config, Models.load(config), progress=False,
+                       echo=lambda _: None)
+    assert "self-calibration found no field of view, so the coverage networks ran without " \
+           "it: 240 frames hold fewer than 3 stretches of 120: not mapped" in result["warnings"]
     for name in ("hidden", "three"):
         assert not runs[name][1].any()
         np.testing.assert_array_equal(runs[name][0], runs["hidden"][0])
