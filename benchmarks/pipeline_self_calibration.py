@@ -8,8 +8,8 @@ then evaluates as `c2d2 eval` does (`hybrid.evaluate.evaluate_pipeline`; out/eva
 run's own rule (`RunConfig.self_calibration`: 3 agreeing) is applied to the stretches as
 mapped. A record must have been mapped with the run's stretches and contrast, and on as many
 frames, at the depth network's size. With `--check N` the first N procedures are mapped by
-the run itself instead, and their stretches compared with the records' (the two map the same
-frames when the run's ingest keeps the simulator's frames whole).
+the run itself instead (in a fresh `--out`), and their stretches compared with the records'
+(the two map the same frames when the run's ingest keeps the simulator's frames whole).
 
     python benchmarks/pipeline_self_calibration.py --data data/heldout \\
         --out data/eval-heldout-view --coverage-checkpoint MODEL \\
@@ -25,15 +25,20 @@ from pathlib import Path
 
 from hybrid import workdir as W
 from hybrid.dataset import Procedure
-from hybrid.evaluate import evaluate_pipeline
+from hybrid.evaluate import evaluate_pipeline, work_folder
 from hybrid.pipeline import Models, RunConfig
-from learned.train import expand_inputs
+from learned.train import expand_inputs, input_name
 
 
 def records(paths: list[Path]) -> dict[str, dict]:
-    """Self-calibration records by 'folder/procedure', from eval-depth JSONs."""
-    return {k: v for path in paths
-            for k, v in json.loads(path.read_text())["self_calibration"].items()}
+    """Self-calibration records by input name ('folder/procedure'), from eval-depth JSONs."""
+    found: dict[str, dict] = {}
+    for path in paths:
+        for name, record in json.loads(path.read_text())["self_calibration"].items():
+            if name in found:
+                raise SystemExit(f"{name}: in more than one of {', '.join(map(str, paths))}")
+            found[name] = record
+    return found
 
 
 def check_record(name: str, record: dict, config: RunConfig, frames: int,
@@ -50,9 +55,12 @@ def check_record(name: str, record: dict, config: RunConfig, frames: int,
 def stretch_differences(work: Path, record: dict) -> str:
     """The run's stretches against the record's: start, fraction placed and fx of each."""
     mapped = json.loads((work / W.SELF_CALIBRATION).read_text())["stretches"]
-    rows = [f"start {a['start']}: placed {a['registered']:.2f} / {b['registered']:.2f}, "
-            f"fx {a['fx']} / {b['fx']}" for a, b in zip(mapped, record["stretches"], strict=True)]
-    return "; ".join(rows)
+    if [a["start"] for a in mapped] != [b["start"] for b in record["stretches"]]:
+        return (f"other stretches: the run's start at {[a['start'] for a in mapped]}, the "
+                f"record's at {[b['start'] for b in record['stretches']]}")
+    return "; ".join(f"start {a['start']}: placed {a['registered']:.2f} / "
+                     f"{b['registered']:.2f}, fx {a['fx']} / {b['fx']}"
+                     for a, b in zip(mapped, record["stretches"], strict=True))
 
 
 def main() -> None:
@@ -65,7 +73,8 @@ def main() -> None:
     parser.add_argument("--self-calibration", type=Path, nargs="+", required=True,
                         help="JSONs of c2d2 eval-depth --self-calibrate on these procedures.")
     parser.add_argument("--check", type=int, default=0,
-                        help="Map the first N procedures in the run and compare.")
+                        help="Map the first N procedures in the run (in work folders that have "
+                             "no self-calibration yet) and compare.")
     args = parser.parse_args()
 
     config = RunConfig(depth_checkpoint=args.depth_checkpoint and str(args.depth_checkpoint),
@@ -74,22 +83,25 @@ def main() -> None:
     size = (models.depth.config.height, models.depth.config.width)
     mapped = records(args.self_calibration)
     procedures = [Procedure.open(p) for p in expand_inputs(args.data)]
-    checked = {}
-    for k, proc in enumerate(procedures):
-        name = f"{proc.path.parent.name}/{proc.path.name}"
+    for proc in procedures:  # every record checked before any folder is written
+        name = input_name(proc.path)
         if name not in mapped:
             raise SystemExit(f"{name}: not in {', '.join(map(str, args.self_calibration))}")
         check_record(name, mapped[name], config, proc.num_frames, size)
-        work = args.out / f"{proc.path.parent.name}-{proc.path.name}"
-        if k < args.check:
-            checked[name] = work
-        elif not (work / W.SELF_CALIBRATION).is_file():
+    checked = procedures[:args.check]
+    for proc in checked:
+        if (work_folder(args.out, proc) / W.SELF_CALIBRATION).is_file():
+            raise SystemExit(f"{work_folder(args.out, proc)} has a self-calibration already: "
+                             f"--check maps it in the run, so give a fresh --out")
+    for proc in procedures[args.check:]:
+        work = work_folder(args.out, proc)
+        if not (work / W.CONFIG).is_file():  # a folder run before keeps what it ran with
             work.mkdir(parents=True, exist_ok=True)
-            W.write_json(work / W.SELF_CALIBRATION, mapped[name])
+            W.write_json(work / W.SELF_CALIBRATION, mapped[input_name(proc.path)])
     result = evaluate_pipeline(procedures, args.out, config, models, echo=print)
-    for name, work in checked.items():
-        print(f"{name}, the run's stretches / the record's: "
-              f"{stretch_differences(work, mapped[name])}")
+    for proc in checked:
+        print(f"{input_name(proc.path)}, the run's stretches / the record's: "
+              f"{stretch_differences(work_folder(args.out, proc), mapped[input_name(proc.path)])}")
     print(json.dumps(result["summary"], indent=1))
 
 

@@ -48,8 +48,8 @@ def run_batch(folder: Path, out: Path, config: RunConfig | None = None, workers:
     """Run every video, the networks on `device`; returns the summary CSV's path."""
     config = config or RunConfig()
     videos = list_videos(folder)
-    # Loaded here whatever the workers, so that networks this configuration cannot run are
-    # refused before any video starts.
+    # Loaded before any video starts, so that networks this configuration cannot run are
+    # refused up front.
     models = Models.load(config, device if workers == 1 else "cpu")
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -61,6 +61,7 @@ def run_batch(folder: Path, out: Path, config: RunConfig | None = None, workers:
             _write_summary(out, videos, rows)
             bar.update(1)
     else:
+        del models  # each worker loads its own
         threads = max(1, (os.cpu_count() or 1) // workers)
         # spawned, not forked: a forked worker cannot use CUDA
         with ProcessPoolExecutor(workers, mp_context=get_context("spawn"),

@@ -232,6 +232,8 @@ def batch(
     out: Annotated[Path, typer.Option(help="Output folder: one work folder per video and "
                                       "summary.csv; rerun to resume.")],
     workers: Annotated[int, typer.Option(min=1, help="Videos processed in parallel.")] = 1,
+    depth_checkpoint: PipelineDepth = None,
+    coverage_checkpoint: PipelineCoverage = None,
     self_calibrate: ViewSelfCalibrate = False,
     device: Device = "auto",
 ):
@@ -242,8 +244,10 @@ def batch(
     from hybrid.pipeline import RunConfig
     from learned.device import pick_device
 
-    summary = run_batch(folder, out, RunConfig(self_calibrate=self_calibrate), workers=workers,
-                        device=pick_device(device))
+    config = RunConfig(depth_checkpoint=_opt(depth_checkpoint),
+                       coverage_checkpoint=_opt(coverage_checkpoint),
+                       self_calibrate=self_calibrate)
+    summary = run_batch(folder, out, config, workers=workers, device=pick_device(device))
     rows = list(csv.DictReader(summary.open()))
     failed = [r for r in rows if r["status"] == "failed"]
     for r in failed:
@@ -581,9 +585,9 @@ def eval_coverage(
     depth_checkpoint: Annotated[Path | None, typer.Option(help="Depth model (default: the "
                                                           "shipped one).")] = None,
     view_hidden: Annotated[bool, typer.Option(
-        "--view-hidden", help="Score networks trained with view_hidden with the field of view "
-        "hidden, as `c2d2 run` gives it them without a self-calibrated one (otherwise they "
-        "read the simulator's).")] = False,
+        "--view-hidden", help="Score networks trained with field_of_view=true and view_hidden "
+        "with the field of view hidden, as `c2d2 run` gives it them without a self-calibrated "
+        "one (otherwise they read the simulator's).")] = False,
     device: Device = "auto",
 ):
     """Per-frame MAE per Δ pair, per-segment MAE, bias and 3-class accuracy, deficient
@@ -598,9 +602,10 @@ def eval_coverage(
 
     model_path, device = model or _shipped_coverage(), pick_device(device)
     net = load_coverage_model(model_path, device=device)
-    if view_hidden and not net.config.view_hidden:
-        raise InputError(f"--view-hidden: {model_path} was not trained with view_hidden, so "
-                         f"it cannot run with its field of view hidden")
+    if view_hidden and not (net.config.field_of_view == "true" and net.config.view_hidden):
+        raise InputError(f"--view-hidden: {model_path} was not trained with field_of_view "
+                         f"'true' and view_hidden, so it does not run with its field of view "
+                         f"hidden")
     samples = load_samples(data, net.config, depth_checkpoint or _shipped_checkpoint(),
                            progress=True, device=device)
     if view_hidden:
@@ -634,7 +639,9 @@ def adapt(
     self_calibrate: ViewSelfCalibrate = False,
     device: Device = "auto",
 ):
-    """Fit CORAL on unlabelled target videos and save the adapted coverage model.
+    """Fit CORAL on unlabelled target videos and save the adapted coverage model (for networks
+    that read a self-calibrated field of view, adapt with --self-calibrate as set for the runs
+    that will use it: the features CORAL aligns depend on it).
 
     Each video is ingested and its depth computed as `c2d2 run` does (streamed), its 10-s
     segments resampled to the per-segment network's window, and windows taken every

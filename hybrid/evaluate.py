@@ -4,8 +4,9 @@ Runs (or resumes) `run_video` on each procedure's RGB frames in out/<procedure>/
 per segment: learned and geometric coverage, and the report's combined coverage
 (hybrid.crosscheck.combined_coverage), against the truth (MAE, bias, 3-class accuracy), and
 the 3-class agreement between the two branches; the MAEs and the agreement with 95% intervals
-bootstrapped over procedures. Writes out/eval.json (with the model files and the geometric
-weight the combined coverage was made with) and out/eval_scatter.png.
+bootstrapped over procedures. Writes out/eval.json (with the model files, the geometric
+weight the combined coverage was made with, and, for networks that read a self-calibrated field
+of view, how many procedures had one) and out/eval_scatter.png.
 """
 
 from __future__ import annotations
@@ -98,14 +99,23 @@ def summarise(rows: list[dict], resamples: int = 2000, seed: int = 0) -> dict:
     return summary
 
 
+def work_folder(out: Path, proc: Procedure) -> Path:
+    """A procedure's work folder under an evaluation's `out`."""
+    return Path(out) / f"{proc.path.parent.name}-{proc.path.name}"
+
+
 def evaluate_pipeline(procedures: list[Procedure], out: Path, config: RunConfig,
                       models: Models, echo: Callable[[str], None] | None = None) -> dict:
     out = Path(out)
     echo = echo or log.info
     rows = []
+    views: dict[str, int] = {}
     for proc in procedures:
-        work = out / f"{proc.path.parent.name}-{proc.path.name}"
+        work = work_folder(out, proc)
         run_video(proc.path, work, config, models, progress=False, echo=lambda _: None)
+        if "field_of_view" in (learned := json.loads((work / W.LEARNED).read_text())):
+            source = learned["field_of_view"]["source"]
+            views[source] = views.get(source, 0) + 1
         table = json.loads((work / W.COVERAGE_JSON).read_text())["segments"]
         truth = proc.coverage.segment_labels()
         spans = [(s.start, s.stop) for s in proc.coverage.segments]
@@ -123,7 +133,9 @@ def evaluate_pipeline(procedures: list[Procedure], out: Path, config: RunConfig,
              f"{[None if r['geometric'] is None else round(r['geometric'], 2) for r in table]}")
     summary = summarise(rows)
     result = {"summary": summary, "checkpoints": models.tags,
-              "geometric_weight": config.geometric_weight, "segments": rows}
+              "geometric_weight": config.geometric_weight,
+              "self_calibrate": config.self_calibrate, "field_of_view": views or None,
+              "segments": rows}
     W.write_json(out / "eval.json", result)
     _scatter(rows, out / "eval_scatter.png")
     return result

@@ -418,7 +418,9 @@ def run_video(source: Path, out: Path, config: RunConfig = RunConfig(),
 
     Raises InputError for bad input; a geometric-branch failure is recorded, not raised.
     Warnings (results written but incomplete): frames that did not decode, a geometric branch
-    that could not run. Trailing frames that do not fill a segment get no verdict (a note).
+    that could not run, frame pairs the RGB-D odometry could not align. Notes: trailing frames
+    that do not fill a segment get no verdict; for networks that read a self-calibrated field
+    of view, whether they had one.
     """
     source, out = Path(source), Path(out)
     models = models or Models.load(config)
@@ -462,10 +464,13 @@ def run_video(source: Path, out: Path, config: RunConfig = RunConfig(),
         warnings.append(run.ingested.decode_warning)
     if geometric_error.is_file():
         warnings.append(f"geometric branch failed at {geometric_error.read_text().strip()}")
-    calibration = run.self_calibration_record()
-    if calibration is not None and calibration.K is None:
-        warnings.append(f"self-calibration found no field of view, so the coverage networks "
-                        f"ran without it: {calibration.describe()}")
+    if models.coverage.config.field_of_view == "true":
+        calibration = run.self_calibration_record()
+        echo("note: the coverage networks ran without the field of view (--self-calibrate "
+             "gives it them)" if calibration is None else
+             "note: self-calibration found no field of view, so the coverage networks ran "
+             f"without it: {calibration.describe()}" if calibration.K is None else
+             "note: the coverage networks read the self-calibrated field of view")
     if (out / W.ODOMETRY).is_file():
         kept = json.loads((out / W.ODOMETRY).read_text())["pairs_kept_unrefined"]
         if any(kept.values()):
@@ -496,9 +501,24 @@ def _source_identity(source: Path) -> dict:
 def _differing(before: dict, now: dict) -> str:
     """The top-level settings in which a work folder's configuration differs from the run's."""
     names = [key if key in before else f"{key}, which it does not record (a setting added to "
-             f"c2d2 since it was made)" for key in sorted(before.keys() | now.keys())
+             f"c2d2 since it was made, or one it did not use)"
+             for key in sorted(before.keys() | now.keys())
              if key not in now or before.get(key) != now[key]]
     return "; ".join(names)
+
+
+SETTINGS_ADDED = {"self_calibrate": False}
+"""Settings added to RunConfig since work folders were first made, each with the value that
+computes what runs made before it did: a folder that does not record one was made with it."""
+
+
+def recorded_config(config: RunConfig) -> dict:
+    """The configuration as config.json records it (the self-calibration's stretches only when
+    it is on)."""
+    recorded = json.loads(json.dumps(asdict(config)))
+    if not config.self_calibrate:
+        del recorded["self_calibration"]
+    return recorded
 
 
 def _prepare(out: Path, config: RunConfig, source: Path, models: Models) -> None:
@@ -514,7 +534,7 @@ def _prepare(out: Path, config: RunConfig, source: Path, models: Models) -> None
                          f"another --out") from err
     saved = out / W.CONFIG
     identity = _source_identity(source)
-    resolved = {"config": json.loads(json.dumps(asdict(config))), "source": identity,
+    resolved = {"config": recorded_config(config), "source": identity,
                 "checkpoints": models.tags, "c2d2_version": __version__}
     if saved.is_file():
         previous = json.loads(saved.read_text())
@@ -527,10 +547,11 @@ def _prepare(out: Path, config: RunConfig, source: Path, models: Models) -> None
                 "content" not in identity else "the run is by an earlier c2d2"
             raise InputError(f"{out} holds a run of {source} as it was before ({why}); use "
                              f"another --out or delete it to start again")
-        if previous.get("config") != resolved["config"]:
+        made_with = {**SETTINGS_ADDED, **(previous.get("config") or {})}
+        if made_with != resolved["config"]:
             raise InputError(f"{out} holds a run made with another configuration (it differs "
-                             f"in {_differing(previous.get('config') or {}, resolved['config'])});"
-                             f" use another --out or delete it to start again")
+                             f"in {_differing(made_with, resolved['config'])}); use another "
+                             f"--out or delete it to start again")
         if "checkpoints" not in previous:
             raise InputError(f"{out} holds a run by an earlier c2d2 that did not record its "
                              f"model files, so it cannot be resumed safely; use another --out "

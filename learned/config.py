@@ -344,7 +344,8 @@ class CoverageConfig:
     field_of_view: str = "none"
     """Camera input of the per-frame network besides the depth: 'predicted' (the median
     intrinsics of the motion network's consecutive pairs, as `c2d2 run` has them), 'true' (the
-    simulator's camera, an ablation) or 'none' (learned.view)."""
+    simulator's camera: an ablation, or with view_hidden, networks that `c2d2 run
+    --self-calibrate` gives the self-calibrated one) or 'none' (learned.view)."""
     view_hidden: float = 0.0
     """Training with a field of view: the chance that it is hidden, given as unknown (a third
     value, 'known', 0: learned.view.hidden_view), for each stage-1 training frame and for each

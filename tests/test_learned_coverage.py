@@ -871,7 +871,7 @@ def test_eval_coverage_scores_view_hidden_networks_with_the_field_of_view_hidden
     result = runner.invoke(app, ["eval-coverage", "--data", str(two_procedures), "--out",
                                  str(tmp_path / "e"), "--model", str(plain), "--view-hidden"])
     assert_clean_error(result, "--view-hidden", "plain.safetensors",
-                       "not trained with view_hidden")
+                       "not trained with field_of_view 'true' and view_hidden")
 
 
 def test_segments_of_another_frame_rate_are_resampled_to_the_window():

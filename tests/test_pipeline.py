@@ -142,6 +142,8 @@ def test_run_writes_every_file_of_the_work_directory(pipeline_run, procedure):
     missing = [name for name in names if not (out / name).exists()]
     assert not missing
     assert not any((out / name).exists() for name in failure_files | optional)
+    # Without self-calibration its stretches' settings are not recorded.
+    assert "self_calibration" not in json.loads((out / W.CONFIG).read_text())["config"]
     assert (out / W.MAPS / "coverage_map.png").is_file()
     assert (out / W.MAPS / "coverage_map.npz").is_file()
     assert not list(out.rglob("*.partial*"))
@@ -384,6 +386,12 @@ def test_cli_refuses_to_self_calibrate_for_the_shipped_networks(pipeline_run, pr
                                  "--workers", "2", "--self-calibrate"])
     assert "do not take it" in assert_input_error(result, "coverage-fast.safetensors")
     assert not (tmp_path / "batch").exists()
+    for args in (["eval", "--data", str(procedure.path), "--out", str(tmp_path / "eval")],
+                 ["adapt", "--target", str(videos), "--out", str(tmp_path / "adapted.st")]):
+        result = runner.invoke(app, args + ["--self-calibrate"])
+        assert "do not take it" in assert_input_error(result, "coverage-fast.safetensors")
+    assert not (tmp_path / "eval").exists() and not (tmp_path / "adapted.st").exists()
+
 
 def test_cli_refuses_a_partial_run_by_a_c2d2_without_a_setting(pipeline_run, procedure,
                                                               tmp_path):
@@ -400,6 +408,20 @@ def test_cli_refuses_a_partial_run_by_a_c2d2_without_a_setting(pipeline_run, pro
     assert "geometric_weight, which it does not record" in message
     assert snapshot(work) == kept
 
+
+
+def test_cli_resumes_a_run_made_before_self_calibration_was_a_setting(pipeline_run, procedure,
+                                                                      tmp_path):
+    """A folder whose configuration lacks self_calibrate was made without it, as a run without
+    it would be made now: it resumes."""
+    out, _ = pipeline_run
+    work, _ = interrupted_copy(out, tmp_path)
+    saved = json.loads((work / W.CONFIG).read_text())
+    del saved["config"]["self_calibrate"]
+    (work / W.CONFIG).write_text(json.dumps(saved))
+    result = runner.invoke(app, ["run", str(procedure.path), "--out", str(work)])
+    assert result.exit_code == 0, result.output
+    assert (work / W.COVERAGE_CSV).read_bytes() == (out / W.COVERAGE_CSV).read_bytes()
 
 @pytest.mark.parametrize("record, expected", [
     ({"depth": "0" * 12}, "other model checkpoints"),  # a file replaced at the same path

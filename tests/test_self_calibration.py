@@ -370,17 +370,21 @@ def test_a_run_gives_view_hidden_networks_the_self_calibrated_field_of_view(tmp_
     assert found.K[0, 0] == pytest.approx(FOCAL * WIDTH / crop["width"], rel=0.1)
     np.testing.assert_allclose(view, known_view(view_values(found.K, WIDTH, HEIGHT, len(view))))
     # Under the run's own rule (3 agreeing) they are too few, and not mapped at all; the run,
-    # completed, says so.
+    # completed, says so in a note (not a warning: its results are whole).
     assert runs["three"][2].K is None and runs["three"][2].stretches == []
-    config = replace(base, self_calibrate=True)
+    config, notes = replace(base, self_calibrate=True), []
     result = run_video(folder, tmp_path / "three", config, Models.load(config), progress=False,
-                       echo=lambda _: None)
-    assert "self-calibration found no field of view, so the coverage networks ran without " \
-           "it: 240 frames hold fewer than 3 stretches of 120: not mapped" in result["warnings"]
+                       echo=notes.append)
+    assert "note: self-calibration found no field of view, so the coverage networks ran " \
+           "without it: 240 frames hold fewer than 3 stretches of 120: not mapped" in notes
+    assert not any("field of view" in w for w in result["warnings"])
+    # The folder of a run without it is not resumed with it.
+    with pytest.raises(InputError, match=r"differs in self_calibrate; self_calibration, which "
+                                         r"it does not record"):
+        run_video(folder, tmp_path / "hidden", config, Models.load(config), progress=False)
     for name in ("hidden", "three"):
         assert not runs[name][1].any()
         np.testing.assert_array_equal(runs[name][0], runs["hidden"][0])
     assert np.abs(features - runs["hidden"][0]).max() > 1e-3  # the input reaches the network
     assert runs["hidden"][2] is None
     assert not (tmp_path / "hidden" / "self_calibration.json").exists()
-
