@@ -23,22 +23,12 @@ import json
 from dataclasses import asdict
 from pathlib import Path
 
+from fusion.self_calibration import eval_records
 from hybrid import workdir as W
 from hybrid.dataset import Procedure
 from hybrid.evaluate import evaluate_pipeline, work_folder
 from hybrid.pipeline import Models, RunConfig
 from learned.train import expand_inputs, input_name
-
-
-def records(paths: list[Path]) -> dict[str, dict]:
-    """Self-calibration records by input name ('folder/procedure'), from eval-depth JSONs."""
-    found: dict[str, dict] = {}
-    for path in paths:
-        for name, record in json.loads(path.read_text())["self_calibration"].items():
-            if name in found:
-                raise SystemExit(f"{name}: in more than one of {', '.join(map(str, paths))}")
-            found[name] = record
-    return found
 
 
 def check_record(name: str, record: dict, config: RunConfig, frames: int,
@@ -81,7 +71,7 @@ def main() -> None:
                        coverage_checkpoint=str(args.coverage_checkpoint), self_calibrate=True)
     models = Models.load(config)
     size = (models.depth.config.height, models.depth.config.width)
-    mapped = records(args.self_calibration)
+    mapped = eval_records(args.self_calibration)
     procedures = [Procedure.open(p) for p in expand_inputs(args.data)]
     for proc in procedures:  # every record checked before any folder is written
         name = input_name(proc.path)

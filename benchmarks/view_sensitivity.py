@@ -29,12 +29,12 @@ per-segment MAE (calibrated, as `c2d2 eval-coverage`).
 from __future__ import annotations
 
 import argparse
-import json
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
+from fusion.self_calibration import eval_records
 from hybrid.coverage import DELTA_PAIRS_CM, pair_key
 from hybrid.dataset import Procedure
 from learned.checkpoints import SHIPPED_DEPTH
@@ -42,8 +42,8 @@ from learned.coverage_data import ProcedureSamples
 from learned.coverage_eval import Predictions, coverage_metrics
 from learned.coverage_nets import load_coverage_model
 from learned.coverage_train import evaluate, load_samples
-from learned.train import expand_inputs
-from learned.view import VIEW_SIZE, hidden_view, known_view
+from learned.train import expand_inputs, input_name
+from learned.view import VIEW_SIZE, hidden_view, known_view, view_values
 
 FACTORS = (0.8, 0.9, 0.95, 1.05, 1.1, 1.2)
 SPREADS = (0.03, 0.05, 0.1, 0.2)
@@ -59,18 +59,17 @@ def self_calibrated(paths: list[Path], procedures: list[Path], head: np.ndarray,
                     min_agreeing: int) -> tuple[np.ndarray, np.ndarray]:
     """(P, 2) field-of-view values, self-calibration's K where at least `min_agreeing` of its
     stretches agreed, else the head's; (P,) bool where they did."""
-    runs = {k: v for path in paths
-            for k, v in json.loads(path.read_text())["self_calibration"].items()}
+    runs = eval_records(paths)
     values, agreed = head.copy(), np.zeros(len(procedures), bool)
     for k, proc in enumerate(procedures):
-        name = f"{proc.parent.name}/{proc.name}"
+        name = input_name(proc)
         if name not in runs:
             raise SystemExit(f"{name}: not in the self-calibration JSONs "
                              f"{', '.join(map(str, paths))}; self-calibrate it first")
         run = runs[name]
         if run["K"] is not None and len(run["agreeing"]) >= min_agreeing:
-            (height, width), K = run["size"], np.asarray(run["K"])
-            values[k], agreed[k] = np.log([width / (2 * K[0, 0]), height / (2 * K[1, 1])]), True
+            (height, width) = run["size"]
+            values[k], agreed[k] = view_values(np.asarray(run["K"]), width, height, 1)[0], True
     return values, agreed
 
 

@@ -16,6 +16,7 @@ no ground truth (`Stretch`).
 
 from __future__ import annotations
 
+import json
 import logging
 import tempfile
 from collections.abc import Callable
@@ -164,6 +165,19 @@ class SelfCalibration:
                 "mapped": [s.start for s in self.mapped],
                 "agreeing": [s.start for s in self.agreeing],
                 "K": None if K is None else K.tolist()}
+
+
+def eval_records(paths: list[Path]) -> dict[str, dict]:
+    """The stretches' records (`SelfCalibration.record`) in JSONs of `c2d2 eval-depth
+    --self-calibrate`, pooled, by input name ('folder/procedure'); a name in two of them is
+    refused."""
+    found: dict[str, dict] = {}
+    for path in paths:
+        for name, record in json.loads(Path(path).read_text())["self_calibration"].items():
+            if name in found:
+                raise InputError(f"{name}: in more than one of {', '.join(map(str, paths))}")
+            found[name] = record
+    return found
 
 
 def calibrate_sequence(seq: FrameSequence,

@@ -359,6 +359,17 @@ class _Run:
         record = json.loads(self.path(W.SELF_CALIBRATION).read_text())
         return SelfCalibration.from_record(record, self.config.self_calibration)
 
+    def view_note(self) -> str:
+        """Which field of view networks trained on the true one read in this run, and why."""
+        found = self.self_calibration_record()
+        if found is None:
+            return ("the coverage networks ran without the field of view (--self-calibrate "
+                    "gives it them)")
+        if found.K is None:
+            return (f"self-calibration found no field of view, so the coverage networks ran "
+                    f"without it: {found.describe()}")
+        return "the coverage networks read the self-calibrated field of view"
+
     def self_calibrated_K(self) -> np.ndarray | None:
         """K at the networks' size where the self-calibration's stretches agree, else None."""
         found = self.self_calibration_record()
@@ -465,12 +476,7 @@ def run_video(source: Path, out: Path, config: RunConfig = RunConfig(),
     if geometric_error.is_file():
         warnings.append(f"geometric branch failed at {geometric_error.read_text().strip()}")
     if models.coverage.config.field_of_view == "true":
-        calibration = run.self_calibration_record()
-        echo("note: the coverage networks ran without the field of view (--self-calibrate "
-             "gives it them)" if calibration is None else
-             "note: self-calibration found no field of view, so the coverage networks ran "
-             f"without it: {calibration.describe()}" if calibration.K is None else
-             "note: the coverage networks read the self-calibrated field of view")
+        echo(f"note: {run.view_note()}")
     if (out / W.ODOMETRY).is_file():
         kept = json.loads((out / W.ODOMETRY).read_text())["pairs_kept_unrefined"]
         if any(kept.values()):

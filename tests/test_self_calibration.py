@@ -21,6 +21,7 @@ from fusion.self_calibration import (
     Stretch,
     _turn,
     contrast_enhanced,
+    eval_records,
     self_calibrate,
     stretch_starts,
 )
@@ -105,6 +106,17 @@ def test_no_consensus_no_K(stretches):
     assert found.K is None and found.record()["K"] is None
     assert found.describe().startswith("no consensus")
 
+
+def test_eval_depth_records_are_pooled_by_name_and_a_name_in_two_is_refused(tmp_path):
+    records = {name: calibration((1.0, f), (1.0, f + 1)).record()
+               for name, f in (("set/proc_0000", 50.0), ("set/proc_0001", 60.0))}
+    paths = []
+    for k, (name, record) in enumerate(records.items()):
+        paths.append(tmp_path / f"eval-{k}.json")
+        paths[-1].write_text(json.dumps({"procedures": {}, "self_calibration": {name: record}}))
+    assert eval_records(paths) == records
+    with pytest.raises(InputError, match="set/proc_0000: in more than one of"):
+        eval_records([paths[0], paths[0]])
 
 def test_a_video_too_short_for_two_stretches_is_not_mapped():
     def never(i):
