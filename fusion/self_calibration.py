@@ -58,6 +58,10 @@ class SelfCalibrationConfig:
     frames as they are. Dim, blurred, noisy frames (the simulator's dusk style) give SIFT too
     little contrast to map otherwise."""
     contrast_tiles: int = 4
+    highlights: bool = False
+    """Keep SIFT off each frame's specular highlights (`highlight_free`): they slide over
+    the wall as the light moves with the camera, so features on them break the static scene
+    the mapper assumes."""
 
     def __post_init__(self):
         if (not 1 <= self.min_agreeing <= self.windows or self.length < 2
@@ -211,6 +215,9 @@ def self_calibrate(frame: Callable[[int], np.ndarray], count: int, region: np.nd
     def prepared(index: int) -> np.ndarray:
         return square(contrast_enhanced(frame(index), config))
 
+    def kept(index: int) -> np.ndarray:
+        return square.mask(region & highlight_free(frame(index)))
+
     mask = square.mask(region)
     starts = stretch_starts(count, config)
     if len(starts) < config.min_agreeing:
@@ -220,16 +227,17 @@ def self_calibrate(frame: Callable[[int], np.ndarray], count: int, region: np.nd
     for ids in tqdm(spans, desc=f"self-calibrate {name}", disable=not progress,
                     unit="stretch"):
         found.append(_map_stretch(ids, [prepared(i) for i in ids], mask,
+                                  [kept(i) for i in ids] if config.highlights else None,
                                   f"{name} frames {ids.start}-{ids.stop - 1}", square.scale[0]))
     return SelfCalibration(count, found, config, (height, width), square.fy_over_fx)
 
 
-def _map_stretch(ids: range, images: list[np.ndarray], mask: np.ndarray, name: str,
-                 scale: float) -> Stretch:
+def _map_stretch(ids: range, images: list[np.ndarray], mask: np.ndarray,
+                 frame_masks: list[np.ndarray] | None, name: str, scale: float) -> Stretch:
     """One stretch as mapped; `scale` takes the mapper's f to the network's size."""
     with tempfile.TemporaryDirectory() as work:
         try:
-            sfm = run_sfm(images, mask, Path(work), name=name)
+            sfm = run_sfm(images, mask, Path(work), name, frame_masks)
         except NoModel as err:  # this stretch is not mapped
             log.info("%s", err)
             return Stretch(ids.start, len(ids), 0.0, None)
@@ -291,3 +299,25 @@ def contrast_enhanced(image: np.ndarray, config: SelfCalibrationConfig) -> np.nd
     tiles = (config.contrast_tiles, config.contrast_tiles)
     lab[..., 0] = cv2.createCLAHE(config.contrast, tiles).apply(lab[..., 0])
     return cv2.cvtColor(lab, cv2.COLOR_LAB2RGB)
+
+
+_HIGHLIGHT_SIZE = 9
+"""Width in pixels of the white top-hat: highlights narrower than this stand out."""
+_HIGHLIGHT_RISE = 30
+"""Lightness (CIELAB L, 0-255) by which a highlight rises above its surroundings."""
+_HIGHLIGHT_GLARE = 240
+"""Lightness of glare, a highlight of any width."""
+_HIGHLIGHT_GROW = 2
+"""Pixels by which highlights are grown, so that no SIFT feature sits on their edges."""
+
+
+def highlight_free(image: np.ndarray) -> np.ndarray:
+    """(H, W) bool: False on the specular highlights of an RGB uint8 frame: pixels whose
+    lightness (lightly smoothed) rises by `_HIGHLIGHT_RISE` above a white top-hat's opening
+    of `_HIGHLIGHT_SIZE` px, or exceeds `_HIGHLIGHT_GLARE`, grown by `_HIGHLIGHT_GROW` px."""
+    lightness = cv2.cvtColor(cv2.GaussianBlur(image, (3, 3), 0), cv2.COLOR_RGB2LAB)[..., 0]
+    disk = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (_HIGHLIGHT_SIZE,) * 2)
+    rise = cv2.morphologyEx(lightness, cv2.MORPH_TOPHAT, disk)
+    bright = ((rise > _HIGHLIGHT_RISE) | (lightness > _HIGHLIGHT_GLARE)).astype(np.uint8)
+    grow = np.ones((2 * _HIGHLIGHT_GROW + 1,) * 2, np.uint8)
+    return cv2.dilate(bright, grow) == 0

@@ -80,17 +80,24 @@ def verification_options() -> pycolmap.TwoViewGeometryOptions:
 
 
 def run_sfm(images: list[np.ndarray], mask: np.ndarray | None, work_dir: Path,
-            name: str = "frames") -> SfmResult:
+            name: str = "frames", frame_masks: list[np.ndarray] | None = None) -> SfmResult:
     """Structure from motion on consecutive RGB uint8 frames (H, W, 3) of one camera.
 
     mask: (H, W) bool, True where the image shows the scene (False on a black border), or None.
+    frame_masks: one (H, W) bool per frame, True where its features may be kept (e.g. off
+    specular highlights), or None.
     work_dir is emptied of a previous run's database and model.
     """
     _check_images(images, mask, name)
+    if frame_masks is not None and (len(frame_masks) != len(images) or any(
+            np.shape(m) != np.shape(images[0])[:2] for m in frame_masks)):
+        raise InputError(f"{name}: frame_masks must hold one (H, W) bool per frame, "
+                         f"{len(images)} of {np.shape(images[0])[:2]}")
     work_dir = Path(work_dir)
     image_dir, model_dir = work_dir / "images", work_dir / "sparse"
+    mask_dir = work_dir / "masks"
     database = work_dir / "database.db"
-    for old in (image_dir, model_dir):
+    for old in (image_dir, model_dir, mask_dir):
         shutil.rmtree(old, ignore_errors=True)
     database.unlink(missing_ok=True)
     image_dir.mkdir(parents=True)
@@ -103,6 +110,11 @@ def run_sfm(images: list[np.ndarray], mask: np.ndarray | None, work_dir: Path,
     if mask is not None:
         reader.camera_mask_path = str(work_dir / "mask.png")
         cv2.imwrite(reader.camera_mask_path, mask.astype(np.uint8) * 255)
+    if frame_masks is not None:  # COLMAP reads image NAME's mask from NAME.png
+        mask_dir.mkdir()
+        reader.mask_path = str(mask_dir)
+        for file, keep in zip(names, frame_masks, strict=True):
+            cv2.imwrite(str(mask_dir / f"{file}.png"), np.asarray(keep, np.uint8) * 255)
 
     start = time.perf_counter()
     with _colmap_errors_only():

@@ -516,6 +516,16 @@ def _differing(before: dict, now: dict) -> str:
 SETTINGS_ADDED = {"self_calibrate": False}
 """Settings added to RunConfig since work folders were first made, each with the value that
 computes what runs made before it did: a folder that does not record one was made with it."""
+SELF_CALIBRATION_ADDED = {"highlights": False}
+"""The same for the fields of a recorded `self_calibration`."""
+
+
+def made_with(recorded: dict) -> dict:
+    """A folder's recorded config with the settings added since filled in as it was made."""
+    config = {**SETTINGS_ADDED, **recorded}
+    if "self_calibration" in config:
+        config["self_calibration"] = {**SELF_CALIBRATION_ADDED, **config["self_calibration"]}
+    return config
 
 
 def recorded_config(config: RunConfig) -> dict:
@@ -553,10 +563,10 @@ def _prepare(out: Path, config: RunConfig, source: Path, models: Models) -> None
                 "content" not in identity else "the run is by an earlier c2d2"
             raise InputError(f"{out} holds a run of {source} as it was before ({why}); use "
                              f"another --out or delete it to start again")
-        made_with = {**SETTINGS_ADDED, **(previous.get("config") or {})}
-        if made_with != resolved["config"]:
+        before_config = made_with(previous.get("config") or {})
+        if before_config != resolved["config"]:
             raise InputError(f"{out} holds a run made with another configuration (it differs "
-                             f"in {_differing(made_with, resolved['config'])}); use another "
+                             f"in {_differing(before_config, resolved['config'])}); use another "
                              f"--out or delete it to start again")
         if "checkpoints" not in previous:
             raise InputError(f"{out} holds a run by an earlier c2d2 that did not record its "

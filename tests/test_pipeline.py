@@ -28,7 +28,15 @@ from hybrid.crosscheck import combined_coverage, cross_check
 from hybrid.dataset import Procedure
 from hybrid.evaluate import summarise
 from hybrid.ingest import Ingested
-from hybrid.pipeline import Models, RunConfig, run_video, video_features, work_segments
+from hybrid.pipeline import (
+    Models,
+    RunConfig,
+    made_with,
+    recorded_config,
+    run_video,
+    video_features,
+    work_segments,
+)
 from hybrid.sim.simulate import SimConfig, simulate_procedure, with_overrides
 from hybrid.types import InputError
 
@@ -422,6 +430,17 @@ def test_cli_resumes_a_run_made_before_self_calibration_was_a_setting(pipeline_r
     result = runner.invoke(app, ["run", str(procedure.path), "--out", str(work)])
     assert result.exit_code == 0, result.output
     assert (work / W.COVERAGE_CSV).read_bytes() == (out / W.COVERAGE_CSV).read_bytes()
+
+def test_settings_added_since_a_folder_was_made_are_filled_in_as_it_was_made():
+    """self_calibrate, and the highlights of a recorded self_calibration, were off before
+    they existed; a folder that did not self-calibrate gains no self_calibration."""
+    recorded = recorded_config(RunConfig(self_calibrate=True))
+    del recorded["self_calibration"]["highlights"]
+    assert made_with(recorded) == recorded_config(RunConfig(self_calibrate=True))
+    plain = recorded_config(RunConfig())
+    del plain["self_calibrate"]
+    assert made_with(plain) == recorded_config(RunConfig())
+
 
 @pytest.mark.parametrize("record, expected", [
     ({"depth": "0" * 12}, "other model checkpoints"),  # a file replaced at the same path

@@ -22,9 +22,11 @@ from fusion.self_calibration import (
     _turn,
     contrast_enhanced,
     eval_records,
+    highlight_free,
     self_calibrate,
     stretch_starts,
 )
+from fusion.sfm_baseline import run_sfm
 from hybrid.cli import app
 from hybrid.pipeline import Models, RunConfig, _Run, run_video, video_features
 from hybrid.types import InputError
@@ -156,6 +158,42 @@ def test_focal_length_of_stretched_pixels_and_a_blank_stretch_that_does_not_coun
     assert found.K[1, 1] / found.K[0, 0] == pytest.approx(1 / squeeze, rel=0.01)
     np.testing.assert_allclose(found.K[:2, 2], [(columns - 1) / 2, (HEIGHT - 1) / 2])
     assert (blank.reprojection_error, blank.points, blank.turn) == (None, None, None)
+
+
+def test_highlights_are_thin_bright_streaks_and_glare_not_bright_walls():
+    """On a wall of lightness ~100: a 3-px streak of 220 and a patch of glare (250) are
+    masked, with a margin; a broad patch of 200 (a nearer, brighter wall) is kept."""
+    image = np.full((64, 80, 3), 100, np.uint8)
+    image[:, 20:23] = 220  # a streak along a fold
+    image[40:60, 40:76] = 200  # broad: no top-hat rise inside it
+    image[5:15, 50:60] = 250  # glare
+    free = highlight_free(image)
+    assert not free[:, 19:24].any()
+    assert free[:, :15].all() and free[:, 28:36].all()
+    assert free[46:54, 46:70].all()
+    assert not free[5:15, 50:60].any()
+    assert free[25:35, 50:60].all()
+
+
+@pytest.mark.parametrize("highlights", [False, True])
+def test_highlights_reach_the_mapper_as_frame_masks(highlights, tube_frames, monkeypatch):
+    """With the option each frame's mask is the image region off its highlights; without it,
+    none. (The tube's grey texture of full contrast is not tissue: the top-hat takes 45% of
+    it, so this checks the masks, not the map.)"""
+    given = []
+
+    def recorded(images, mask, work, name, frame_masks=None):
+        given.append(frame_masks)
+        return run_sfm(images, mask, work, name, frame_masks)
+
+    monkeypatch.setattr("fusion.self_calibration.run_sfm", recorded)
+    frames = tube_frames[:12]
+    config = SelfCalibrationConfig(windows=1, length=12, min_agreeing=1, highlights=highlights)
+    self_calibrate(frames.__getitem__, 12, MASK, "tube", config=config)
+    if highlights:
+        np.testing.assert_array_equal(given[0], [MASK & highlight_free(f) for f in frames])
+    else:
+        assert given == [None]
 
 
 def test_a_stretch_keeps_its_map_quality_and_the_true_turn_of_the_camera(tube_frames):

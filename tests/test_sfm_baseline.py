@@ -39,6 +39,19 @@ def test_sfm_recovers_focal_length_and_trajectory(tmp_path):
         assert MASK[y, x].all()
 
 
+def test_frame_masks_keep_features_off_masked_pixels(tmp_path):
+    """A mask per frame: its right half kept, so no keypoint lies in the left half."""
+    poses = [pose_at(i) for i in range(12)]
+    texture = wall_texture()
+    right = np.zeros(MASK.shape, bool)
+    right[:, MASK.shape[1] // 2:] = True
+    run_sfm([render(p, texture) for p in poses], MASK, tmp_path, frame_masks=[right] * 12)
+    database = pycolmap.Database.open(tmp_path / "database.db")
+    columns = np.concatenate([database.read_keypoints(image.image_id)[:, 0]
+                              for image in database.read_all_images()])
+    assert len(columns) > 100 and columns.min() >= MASK.shape[1] // 2 - 0.5
+
+
 def test_sfm_without_texture_raises(tmp_path):
     with pytest.raises(InputError, match="no model"):
         run_sfm([np.full((64, 80, 3), 128, np.uint8)] * 4, None, tmp_path, name="grey")
@@ -55,3 +68,9 @@ def test_sfm_without_texture_raises(tmp_path):
 def test_bad_input_is_named(images, mask, match, tmp_path):
     with pytest.raises(InputError, match=match):
         run_sfm(images, mask, tmp_path)
+
+
+@pytest.mark.parametrize("frame_masks", [[np.ones((8, 8), bool)], [np.ones((4, 8), bool)] * 2])
+def test_frame_masks_of_the_wrong_count_or_size_are_refused(frame_masks, tmp_path):
+    with pytest.raises(InputError, match="frame_masks"):
+        run_sfm([np.zeros((8, 8, 3), np.uint8)] * 2, None, tmp_path, frame_masks=frame_masks)

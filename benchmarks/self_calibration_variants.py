@@ -1,0 +1,97 @@
+"""The self-calibration of simulated procedures under a variant of its config, without the depth
+network: each procedure's stretches are mapped as `c2d2 eval-depth --self-calibrate` maps them
+(`fusion.self_calibration.calibrate_sequence`, the frames at the fast preset's size), with
+`--set FIELD=VALUE` overriding fields of `SelfCalibrationConfig`.
+
+Writes, after each procedure, a JSON laid out as eval-depth's (`procedures`: the true fx, and
+the head's error copied from `--head`, eval-depth JSONs of the same procedures, when given;
+`self_calibration`: the records), so that `benchmarks/self_calibration_rules.py` can score it
+when `--head` was given; a rerun skips the procedures it holds. Prints per style the
+procedures with a consensus, its fx error, and the mapped stretches within the config's
+`agreement` of the true fx.
+
+    .venv/bin/python benchmarks/self_calibration_variants.py --data data/cov-dusk/proc_000{0..7} \\
+        --set highlights=true --out data/selfcal-variants/dusk-highlights.json
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from dataclasses import fields, replace
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from fusion.self_calibration import SelfCalibration, SelfCalibrationConfig, calibrate_sequence
+from learned.config import DepthConfig
+from learned.frames import open_sequence
+
+
+def overridden(config: SelfCalibrationConfig, settings: list[str]) -> SelfCalibrationConfig:
+    """config with FIELD=VALUE settings, each value parsed by its field's type."""
+    types = {f.name: type(getattr(config, f.name)) for f in fields(config)}
+    changes = {}
+    for setting in settings:
+        name, _, value = setting.partition("=")
+        if name not in types:
+            raise SystemExit(f"--set {setting}: no field {name!r} in {sorted(types)}")
+        changes[name] = value.lower() == "true" if types[name] is bool else types[name](value)
+    return replace(config, **changes)
+
+
+def summary(scored: dict) -> None:
+    """Per style: consensus count and error, mapped stretches near the true fx."""
+    rows: dict[str, list] = {}
+    for name, record in scored["self_calibration"].items():
+        found = SelfCalibration.from_record(record, SelfCalibrationConfig(**record["config"]))
+        true = scored["procedures"][name]["fx_true"]
+        K = found.K
+        near = [abs(s.fx / true - 1) <= found.config.agreement for s in found.mapped]
+        rows.setdefault(scored["procedures"][name]["style"], []).append(
+            (None if K is None else abs(K[0, 0] / true - 1), len(found.mapped), sum(near)))
+    print("| style | procedures | consensus | its fx error | stretches mapped | of those near |")
+    print("| --- | --- | --- | --- | --- | --- |")
+    for style, found in sorted(rows.items()):
+        errors = [e for e, _, _ in found if e is not None]
+        mean = f"{np.mean(errors):.1%}" if errors else "-"
+        print(f"| {style} | {len(found)} | {len(errors)} | {mean} | "
+              f"{sum(m for _, m, _ in found)} | {sum(n for _, _, n in found)} |")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--data", type=Path, nargs="+", required=True)
+    parser.add_argument("--set", nargs="*", default=[], metavar="FIELD=VALUE")
+    parser.add_argument("--head", type=Path, nargs="*", default=[],
+                        help="eval-depth JSONs giving the head's fx error")
+    parser.add_argument("--out", type=Path, required=True)
+    args = parser.parse_args()
+    cv2.setNumThreads(1)
+    config = overridden(SelfCalibrationConfig(), args.set)
+    head = {name: scored for path in args.head
+            for name, scored in json.loads(path.read_text())["procedures"].items()}
+    scored = (json.loads(args.out.read_text()) if args.out.exists()
+              else {"procedures": {}, "self_calibration": {}})
+    size = (DepthConfig().height, DepthConfig().width)
+    for path in args.data:
+        name = f"{path.parent.name}/{path.name}"
+        if name in scored["self_calibration"]:
+            continue
+        seq = open_sequence(path, size)
+        found = calibrate_sequence(seq, config, progress=True)
+        style = json.loads((path / "meta.json").read_text())["config"]["style"]
+        scored["procedures"][name] = {"fx_true": float(seq.camera.fx), "style": style,
+                                      **({"fx_head_rel": head[name]["fx_head_rel"]}
+                                         if name in head else {})}
+        scored["self_calibration"][name] = found.record()
+        args.out.parent.mkdir(parents=True, exist_ok=True)
+        partial = args.out.with_suffix(".partial")
+        partial.write_text(json.dumps(scored, indent=1))
+        partial.replace(args.out)
+    summary(scored)
+
+
+if __name__ == "__main__":
+    main()
