@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import time
 from dataclasses import fields, replace
 from pathlib import Path
 
@@ -67,6 +68,7 @@ def main() -> None:
     parser.add_argument("--head", type=Path, nargs="*", default=[],
                         help="eval-depth JSONs giving the head's fx error")
     parser.add_argument("--out", type=Path, required=True)
+    parser.add_argument("--workers", type=int, default=1, help="stretches mapped at once")
     args = parser.parse_args()
     cv2.setNumThreads(1)
     config = overridden(SelfCalibrationConfig(), args.set)
@@ -80,7 +82,9 @@ def main() -> None:
         if name in scored["self_calibration"]:
             continue
         seq = open_sequence(path, size)
-        found = calibrate_sequence(seq, config, progress=True)
+        start = time.perf_counter()
+        found = calibrate_sequence(seq, config, progress=True, workers=args.workers)
+        print(f"{name}: {time.perf_counter() - start:.1f} s, {args.workers} worker(s)")
         style = json.loads((path / "meta.json").read_text())["config"]["style"]
         scored["procedures"][name] = {"fx_true": float(seq.camera.fx), "style": style,
                                       **({"fx_head_rel": head[name]["fx_head_rel"]}

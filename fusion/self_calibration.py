@@ -20,7 +20,9 @@ import json
 import logging
 import tempfile
 from collections.abc import Callable
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, dataclass
+from multiprocessing import get_context
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -186,10 +188,10 @@ def eval_records(paths: list[Path]) -> dict[str, dict]:
 
 def calibrate_sequence(seq: FrameSequence,
                        config: SelfCalibrationConfig = SelfCalibrationConfig(),
-                       progress: bool = False) -> SelfCalibration:
+                       progress: bool = False, workers: int = 1) -> SelfCalibration:
     """self_calibrate on a learned.frames.FrameSequence (the frames as the network sees them)."""
     return self_calibrate(seq.frame, seq.num_frames, seq.region, seq.name, seq.pixel_aspect,
-                          config, progress)
+                          config, progress, workers)
 
 
 def stretch_starts(count: int, config: SelfCalibrationConfig) -> list[int]:
@@ -202,12 +204,14 @@ def stretch_starts(count: int, config: SelfCalibrationConfig) -> list[int]:
 def self_calibrate(frame: Callable[[int], np.ndarray], count: int, region: np.ndarray,
                    name: str, pixel_aspect: float = 1.0,
                    config: SelfCalibrationConfig = SelfCalibrationConfig(),
-                   progress: bool = False) -> SelfCalibration:
-    """Map each stretch of the `count` frames.
+                   progress: bool = False, workers: int = 1) -> SelfCalibration:
+    """Map each stretch of the `count` frames, up to `workers` at once.
 
     frame(i): RGB uint8 (H, W, 3) at the network's size; region: (H, W) bool image region;
     pixel_aspect: fy / fx of the frames; each frame is first enlarged to square pixels
-    (`SquarePixels`), and f is scaled back along each axis.
+    (`SquarePixels`), and f is scaled back along each axis. With workers > 1 the stretches are
+    mapped in spawned processes of one thread each, which gives what one process gives (the
+    mapper in two threads of one process does not: `fusion.sfm_baseline._map`).
     """
     height, width = region.shape
     square = SquarePixels((height, width), pixel_aspect)
@@ -223,12 +227,20 @@ def self_calibrate(frame: Callable[[int], np.ndarray], count: int, region: np.nd
     if len(starts) < config.min_agreeing:
         starts = []  # no consensus possible: spare the mapping
     spans = [range(start, min(start + config.length, count)) for start in starts]
-    found = []
-    for ids in tqdm(spans, desc=f"self-calibrate {name}", disable=not progress,
-                    unit="stretch"):
-        found.append(_map_stretch(ids, [prepared(i) for i in ids], mask,
-                                  [kept(i) for i in ids] if config.highlights else None,
-                                  f"{name} frames {ids.start}-{ids.stop - 1}", square.scale[0]))
+
+    def stretch(ids: range) -> tuple:
+        """_map_stretch's arguments for one stretch."""
+        return (ids, [prepared(i) for i in ids], mask,
+                [kept(i) for i in ids] if config.highlights else None,
+                f"{name} frames {ids.start}-{ids.stop - 1}", square.scale[0])
+
+    bar = {"desc": f"self-calibrate {name}", "disable": not progress, "unit": "stretch"}
+    if workers > 1 and len(spans) > 1:
+        with ProcessPoolExecutor(min(workers, len(spans)), get_context("spawn")) as pool:
+            jobs = [pool.submit(_map_stretch, *stretch(ids)) for ids in spans]
+            found = [job.result() for job in tqdm(jobs, **bar)]
+    else:
+        found = [_map_stretch(*stretch(ids)) for ids in tqdm(spans, **bar)]
     return SelfCalibration(count, found, config, (height, width), square.fy_over_fx)
 
 

@@ -29,7 +29,7 @@ AdaptSteps = Annotated[int, typer.Option(min=0, help="First adapt the depth mode
                                          "'Adapting to the video').")]
 SelfCalibrate = Annotated[bool, typer.Option(
     "--self-calibrate", help="Take K from structure from motion on up to 5 stretches of 120 "
-    "frames (fusion/self_calibration.py; 1-7 minutes a video on 2 CPU cores) instead of the "
+    "frames (fusion/self_calibration.py; 1-4 minutes a video on 2 CPU cores) instead of the "
     "network's intrinsics head. Without 2 stretches that map and agree (dark, textureless or "
     "short video) the head's K is kept, with a warning; intrinsics.json's 'source' says "
     "which.")]
@@ -40,7 +40,7 @@ Contrast = Annotated[float | None, typer.Option(
 ViewSelfCalibrate = Annotated[bool, typer.Option(
     "--self-calibrate", help="Give coverage networks trained with field_of_view=true and "
     "view_hidden the video's field of view, by structure from motion on up to 5 stretches of "
-    "120 frames where at least 3 agree (1-7 minutes a video on 2 CPU cores; "
+    "120 frames where at least 3 agree (1-4 minutes a video on 2 CPU cores; "
     "self_calibration.json); otherwise they run with it hidden. The geometric branch keeps "
     "the intrinsics head's K.")]
 PipelineDepth = Annotated[Path | None, typer.Option(help="Depth model (default: shipped).")]
@@ -449,11 +449,13 @@ def depth(
 def _self_calibration(seq: FrameSequence, contrast: float | None) -> SelfCalibration:
     """fusion.self_calibration on the frames as the network sees them (its default config, or
     another `contrast`); a warning without a consensus (the intrinsics head's K is then
-    kept)."""
+    kept); as many stretches mapped at once as torch has threads."""
+    import torch
+
     from fusion.self_calibration import SelfCalibrationConfig, calibrate_sequence
 
     config = SelfCalibrationConfig(**({} if contrast is None else {"contrast": contrast}))
-    found = calibrate_sequence(seq, config, progress=True)
+    found = calibrate_sequence(seq, config, progress=True, workers=torch.get_num_threads())
     if found.K is None:
         typer.echo(f"warning: {seq.name}: self-calibration gave no K, so the intrinsics head's "
                    f"is kept: {found.describe()}", err=True)

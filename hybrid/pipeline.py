@@ -225,7 +225,10 @@ class _Run:
         depth.close()  # last: its presence marks the stage complete
 
     def self_calibration(self) -> None:
-        found = calibrate_sequence(self.sequence(), self.config.self_calibration, self.progress)
+        """The stretches mapped by as many processes as this one has torch threads (its share
+        of the cores in a batch)."""
+        found = calibrate_sequence(self.sequence(), self.config.self_calibration, self.progress,
+                                   torch.get_num_threads())
         W.write_json(self.path(W.SELF_CALIBRATION), found.record())
 
     def posegraph(self) -> None:

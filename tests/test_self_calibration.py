@@ -175,6 +175,15 @@ def test_highlights_are_thin_bright_streaks_and_glare_not_bright_walls():
     assert free[25:35, 50:60].all()
 
 
+def test_stretches_mapped_in_parallel_processes_are_those_mapped_in_one(tube_frames):
+    """Two spawned workers map what one process maps, to the last digit."""
+    config = SelfCalibrationConfig(windows=2, length=24)
+    alone, parallel = (self_calibrate(tube_frames.__getitem__, 48, MASK, "tube", config=config,
+                                      workers=workers) for workers in (1, 2))
+    assert parallel.record() == alone.record()
+    assert len(alone.mapped) == 2
+
+
 @pytest.mark.parametrize("highlights", [False, True])
 def test_highlights_reach_the_mapper_as_frame_masks(highlights, tube_frames, monkeypatch):
     """With the option each frame's mask is the image region off its highlights; without it,
