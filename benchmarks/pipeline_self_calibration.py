@@ -27,7 +27,7 @@ from fusion.self_calibration import eval_records
 from hybrid import workdir as W
 from hybrid.dataset import Procedure
 from hybrid.evaluate import evaluate_pipeline, work_folder
-from hybrid.pipeline import Models, RunConfig
+from hybrid.pipeline import SELF_CALIBRATION_ADDED, Models, RunConfig
 from learned.train import expand_inputs, input_name
 
 
@@ -35,7 +35,8 @@ def check_record(name: str, record: dict, config: RunConfig, frames: int,
                  size: tuple[int, int]) -> None:
     """Refuse a record mapped otherwise than the run would map `frames` frames of `size`."""
     ours = {k: v for k, v in asdict(config.self_calibration).items() if k != "min_agreeing"}
-    theirs = {k: record["config"].get(k) for k in ours}
+    made = {**SELF_CALIBRATION_ADDED, **record["config"]}  # fields added since, as it was made
+    theirs = {k: made.get(k) for k in ours}
     if theirs != ours or record["frames"] != frames or tuple(record["size"]) != size:
         raise SystemExit(f"{name}: its record was mapped with {theirs} on {record['frames']} "
                          f"frames of {record['size']}; the run maps {ours} on {frames} frames "

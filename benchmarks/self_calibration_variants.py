@@ -6,9 +6,9 @@ network: each procedure's stretches are mapped as `c2d2 eval-depth --self-calibr
 Writes, after each procedure, a JSON laid out as eval-depth's (`procedures`: the true fx, and
 the head's error copied from `--head`, eval-depth JSONs of the same procedures, when given;
 `self_calibration`: the records), so that `benchmarks/self_calibration_rules.py` can score it
-when `--head` was given; a rerun skips the procedures it holds. Prints per style the
-procedures with a consensus, its fx error, and the mapped stretches within the config's
-`agreement` of the true fx.
+when `--head` was given; a rerun skips the procedures it holds (mapped with the same config:
+another is refused). Prints per style the procedures with a consensus, its fx error, and the
+mapped stretches within the config's `agreement` of the true fx.
 
     .venv/bin/python benchmarks/self_calibration_variants.py --data data/cov-dusk/proc_000{0..7} \\
         --set highlights=true --out data/selfcal-variants/dusk-highlights.json
@@ -19,27 +19,15 @@ from __future__ import annotations
 import argparse
 import json
 import time
-from dataclasses import fields, replace
+from dataclasses import replace
 from pathlib import Path
 
 import cv2
 import numpy as np
 
 from fusion.self_calibration import SelfCalibration, SelfCalibrationConfig, calibrate_sequence
-from learned.config import DepthConfig
+from learned.config import DepthConfig, parse_overrides
 from learned.frames import open_sequence
-
-
-def overridden(config: SelfCalibrationConfig, settings: list[str]) -> SelfCalibrationConfig:
-    """config with FIELD=VALUE settings, each value parsed by its field's type."""
-    types = {f.name: type(getattr(config, f.name)) for f in fields(config)}
-    changes = {}
-    for setting in settings:
-        name, _, value = setting.partition("=")
-        if name not in types:
-            raise SystemExit(f"--set {setting}: no field {name!r} in {sorted(types)}")
-        changes[name] = value.lower() == "true" if types[name] is bool else types[name](value)
-    return replace(config, **changes)
 
 
 def summary(scored: dict) -> None:
@@ -71,7 +59,8 @@ def main() -> None:
     parser.add_argument("--workers", type=int, default=1, help="stretches mapped at once")
     args = parser.parse_args()
     cv2.setNumThreads(1)
-    config = overridden(SelfCalibrationConfig(), args.set)
+    defaults = SelfCalibrationConfig()
+    config = replace(defaults, **parse_overrides(args.set, defaults))
     head = {name: scored for path in args.head
             for name, scored in json.loads(path.read_text())["procedures"].items()}
     scored = (json.loads(args.out.read_text()) if args.out.exists()
@@ -79,7 +68,10 @@ def main() -> None:
     size = (DepthConfig().height, DepthConfig().width)
     for path in args.data:
         name = f"{path.parent.name}/{path.name}"
-        if name in scored["self_calibration"]:
+        if name in scored["self_calibration"]:  # mapped by an earlier run of this command
+            if SelfCalibrationConfig(**scored["self_calibration"][name]["config"]) != config:
+                raise SystemExit(f"{args.out} holds {name} mapped with another config: "
+                                 f"use another --out")
             continue
         seq = open_sequence(path, size)
         start = time.perf_counter()

@@ -22,6 +22,7 @@ import tempfile
 from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, dataclass
+from functools import partial
 from multiprocessing import get_context
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -31,6 +32,7 @@ import numpy as np
 from tqdm import tqdm
 
 from fusion.sfm_baseline import NoModel, run_sfm
+from hybrid import LOG_FORMAT
 from hybrid.types import InputError
 
 if TYPE_CHECKING:
@@ -215,33 +217,39 @@ def self_calibrate(frame: Callable[[int], np.ndarray], count: int, region: np.nd
     """
     height, width = region.shape
     square = SquarePixels((height, width), pixel_aspect)
-
-    def prepared(index: int) -> np.ndarray:
-        return square(contrast_enhanced(frame(index), config))
-
-    def kept(index: int) -> np.ndarray:
-        return square.mask(region & highlight_free(frame(index)))
-
     mask = square.mask(region)
     starts = stretch_starts(count, config)
     if len(starts) < config.min_agreeing:
         starts = []  # no consensus possible: spare the mapping
     spans = [range(start, min(start + config.length, count)) for start in starts]
 
-    def stretch(ids: range) -> tuple:
-        """_map_stretch's arguments for one stretch."""
-        return (ids, [prepared(i) for i in ids], mask,
-                [kept(i) for i in ids] if config.highlights else None,
-                f"{name} frames {ids.start}-{ids.stop - 1}", square.scale[0])
+    def stretch(ids: range) -> partial:
+        """The mapping of one stretch, ready to run here or in a worker."""
+        frames = [frame(i) for i in ids]
+        kept = ([square.mask(region & highlight_free(f)) for f in frames] if config.highlights
+                else None)
+        return partial(_map_stretch, ids, [square(contrast_enhanced(f, config)) for f in frames],
+                       mask, kept, f"{name} frames {ids.start}-{ids.stop - 1}", square.scale[0])
 
     bar = {"desc": f"self-calibrate {name}", "disable": not progress, "unit": "stretch"}
     if workers > 1 and len(spans) > 1:
-        with ProcessPoolExecutor(min(workers, len(spans)), get_context("spawn")) as pool:
-            jobs = [pool.submit(_map_stretch, *stretch(ids)) for ids in spans]
-            found = [job.result() for job in tqdm(jobs, **bar)]
+        with ProcessPoolExecutor(min(workers, len(spans)), get_context("spawn"),
+                                 initializer=_start_mapper,
+                                 initargs=(logging.getLogger().level,)) as pool:
+            jobs = [pool.submit(stretch(ids)) for ids in spans]
+            try:
+                found = [job.result() for job in tqdm(jobs, **bar)]
+            except BaseException:  # an error: do not map the stretches still waiting
+                pool.shutdown(cancel_futures=True)
+                raise
     else:
-        found = [_map_stretch(*stretch(ids)) for ids in tqdm(spans, **bar)]
+        found = [stretch(ids)() for ids in tqdm(spans, **bar)]
     return SelfCalibration(count, found, config, (height, width), square.fy_over_fx)
+
+
+def _start_mapper(log_level: int) -> None:
+    """A spawned mapping process logs as its parent does."""
+    logging.basicConfig(level=log_level, format=LOG_FORMAT)
 
 
 def _map_stretch(ids: range, images: list[np.ndarray], mask: np.ndarray,
@@ -316,7 +324,7 @@ def contrast_enhanced(image: np.ndarray, config: SelfCalibrationConfig) -> np.nd
 _HIGHLIGHT_SIZE = 9
 """Width in pixels of the white top-hat: highlights narrower than this stand out."""
 _HIGHLIGHT_RISE = 30
-"""Lightness (CIELAB L, 0-255) by which a highlight rises above its surroundings."""
+"""Lightness (CIELAB L, 0-255) by which a highlight exceeds the top-hat's opening."""
 _HIGHLIGHT_GLARE = 240
 """Lightness of glare, a highlight of any width."""
 _HIGHLIGHT_GROW = 2
@@ -325,8 +333,9 @@ _HIGHLIGHT_GROW = 2
 
 def highlight_free(image: np.ndarray) -> np.ndarray:
     """(H, W) bool: False on the specular highlights of an RGB uint8 frame: pixels whose
-    lightness (lightly smoothed) rises by `_HIGHLIGHT_RISE` above a white top-hat's opening
-    of `_HIGHLIGHT_SIZE` px, or exceeds `_HIGHLIGHT_GLARE`, grown by `_HIGHLIGHT_GROW` px."""
+    white top-hat (lightness, lightly smoothed, minus its opening by a disk of
+    `_HIGHLIGHT_SIZE` px) exceeds `_HIGHLIGHT_RISE`, or whose lightness exceeds
+    `_HIGHLIGHT_GLARE`, grown by `_HIGHLIGHT_GROW` px."""
     lightness = cv2.cvtColor(cv2.GaussianBlur(image, (3, 3), 0), cv2.COLOR_RGB2LAB)[..., 0]
     disk = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (_HIGHLIGHT_SIZE,) * 2)
     rise = cv2.morphologyEx(lightness, cv2.MORPH_TOPHAT, disk)

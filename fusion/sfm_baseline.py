@@ -90,7 +90,8 @@ def run_sfm(images: list[np.ndarray], mask: np.ndarray | None, work_dir: Path,
     """
     _check_images(images, mask, name)
     if frame_masks is not None and (len(frame_masks) != len(images) or any(
-            np.shape(m) != np.shape(images[0])[:2] for m in frame_masks)):
+            np.shape(m) != np.shape(images[0])[:2] or np.asarray(m).dtype != bool
+            for m in frame_masks)):
         raise InputError(f"{name}: frame_masks must hold one (H, W) bool per frame, "
                          f"{len(images)} of {np.shape(images[0])[:2]}")
     work_dir = Path(work_dir)

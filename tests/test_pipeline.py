@@ -431,6 +431,7 @@ def test_cli_resumes_a_run_made_before_self_calibration_was_a_setting(pipeline_r
     assert result.exit_code == 0, result.output
     assert (work / W.COVERAGE_CSV).read_bytes() == (out / W.COVERAGE_CSV).read_bytes()
 
+
 def test_settings_added_since_a_folder_was_made_are_filled_in_as_it_was_made():
     """self_calibrate, and the highlights of a recorded self_calibration, were off before
     they existed; a folder that did not self-calibrate gains no self_calibration."""

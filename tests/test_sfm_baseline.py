@@ -70,7 +70,8 @@ def test_bad_input_is_named(images, mask, match, tmp_path):
         run_sfm(images, mask, tmp_path)
 
 
-@pytest.mark.parametrize("frame_masks", [[np.ones((8, 8), bool)], [np.ones((4, 8), bool)] * 2])
+@pytest.mark.parametrize("frame_masks", [[np.ones((8, 8), bool)], [np.ones((4, 8), bool)] * 2,
+                                         [np.ones((8, 8), np.float32)] * 2])
 def test_frame_masks_of_the_wrong_count_or_size_are_refused(frame_masks, tmp_path):
     with pytest.raises(InputError, match="frame_masks"):
         run_sfm([np.zeros((8, 8, 3), np.uint8)] * 2, None, tmp_path, frame_masks=frame_masks)
