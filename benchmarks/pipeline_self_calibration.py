@@ -34,7 +34,8 @@ from learned.train import expand_inputs, input_name
 def check_record(name: str, record: dict, config: RunConfig, frames: int,
                  size: tuple[int, int]) -> None:
     """Refuse a record mapped otherwise than the run would map `frames` frames of `size`."""
-    ours = {k: v for k, v in asdict(config.self_calibration).items() if k != "min_agreeing"}
+    ours = {k: v for k, v in asdict(config.self_calibration).items()
+            if k not in ("min_agreeing", "min_field_of_view")}  # the consensus's, not the map's
     made = {**SELF_CALIBRATION_ADDED, **record["config"]}  # fields added since, as it was made
     theirs = {k: made.get(k) for k in ours}
     if theirs != ours or record["frames"] != frames or tuple(record["size"]) != size:

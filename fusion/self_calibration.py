@@ -62,6 +62,12 @@ class SelfCalibrationConfig:
     frames as they are. Dim, blurred, noisy frames (the simulator's dusk style) give SIFT too
     little contrast to map otherwise."""
     contrast_tiles: int = 4
+    min_field_of_view: float = 60.0
+    """Narrowest horizontal field of view (degrees, across the frames as given) of a stretch
+    that counts as mapped. Colonoscopes are built wide-angle (140-170 degrees by their makers'
+    specifications); 60 still admits a crop of a fifth of the width of a 140-degree image. The
+    simulator's cameras span 90-130; the real clip's stretches mapped at 12-53
+    (`docs/depth.md`, "Real footage")."""
     highlights: bool = False
     """Keep SIFT off each frame's specular highlights (`highlight_free`): they slide over
     the wall as the light moves with the camera, so features on them break the static scene
@@ -70,10 +76,11 @@ class SelfCalibrationConfig:
     def __post_init__(self):
         if (not 1 <= self.min_agreeing <= self.windows or self.length < 2
                 or not 0 < self.min_registered <= 1 or not self.agreement > 0
-                or not self.contrast >= 0 or self.contrast_tiles < 1):
+                or not self.contrast >= 0 or self.contrast_tiles < 1
+                or not 0 <= self.min_field_of_view < 180):
             raise InputError(f"self-calibration needs 1 <= min_agreeing <= windows, length >= 2,"
-                             f" 0 < min_registered <= 1, agreement > 0, contrast >= 0 and "
-                             f"contrast_tiles >= 1, got {self}")
+                             f" 0 < min_registered <= 1, agreement > 0, contrast >= 0, "
+                             f"contrast_tiles >= 1 and 0 <= min_field_of_view < 180, got {self}")
 
 
 @dataclass(frozen=True)
@@ -116,8 +123,15 @@ class SelfCalibration:
 
     @property
     def mapped(self) -> list[Stretch]:
+        """Stretches with at least `min_registered` of their frames placed, at a focal length
+        no narrower than `min_field_of_view`."""
         return [s for s in self.stretches
-                if s.fx is not None and s.registered >= self.config.min_registered]
+                if s.fx is not None and s.registered >= self.config.min_registered
+                and self.field_of_view(s) >= self.config.min_field_of_view]
+
+    def field_of_view(self, stretch: Stretch) -> float:
+        """Horizontal field of view (degrees) of a stretch's focal length."""
+        return float(np.degrees(2 * np.arctan(self.size[1] / 2 / stretch.fx)))
 
     @property
     def agreeing(self) -> list[Stretch]:
@@ -152,6 +166,12 @@ class SelfCalibration:
         K = self.K
         head = ("no consensus" if K is None else
                 f"fx {K[0, 0]:.1f}, fy {K[1, 1]:.1f} at the network's size")
+        narrow = [s.start for s in self.stretches if s.fx is not None
+                  and self.field_of_view(s) < self.config.min_field_of_view]
+        if narrow:
+            head += (f"; the stretches from frames {narrow} mapped at a field of view under "
+                     f"{self.config.min_field_of_view:g} degrees, too narrow for an endoscope, "
+                     f"and do not count")
         return f"{head} (per stretch: first frame, fraction placed, fx: {seen})"
 
     @classmethod
@@ -159,8 +179,10 @@ class SelfCalibration:
                     ) -> SelfCalibration:
         """Back from `record()`, under its own config or another one (the stretches as
         mapped; nothing is mapped again)."""
-        if config is None:  # records made before the contrast step mapped without it
-            config = SelfCalibrationConfig(**{"contrast": 0.0, **record["config"]})
+        if config is None:  # records made before the contrast step mapped without it, and
+            # those before the bound on the field of view had none
+            config = SelfCalibrationConfig(**{"contrast": 0.0, "min_field_of_view": 0.0,
+                                              **record["config"]})
         return cls(record["frames"], [Stretch(**s) for s in record["stretches"]], config,
                    tuple(record["size"]), record["fy_over_fx"])
 

@@ -519,7 +519,7 @@ def _differing(before: dict, now: dict) -> str:
 SETTINGS_ADDED = {"self_calibrate": False}
 """Settings added to RunConfig since work folders were first made, each with the value that
 computes what runs made before it did: a folder that does not record one was made with it."""
-SELF_CALIBRATION_ADDED = {"highlights": False}
+SELF_CALIBRATION_ADDED = {"highlights": False, "min_field_of_view": 0.0}
 """The same for the fields of a recorded `self_calibration`."""
 
 

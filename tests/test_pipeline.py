@@ -433,11 +433,16 @@ def test_cli_resumes_a_run_made_before_self_calibration_was_a_setting(pipeline_r
 
 
 def test_settings_added_since_a_folder_was_made_are_filled_in_as_it_was_made():
-    """self_calibrate, and the highlights of a recorded self_calibration, were off before
-    they existed; a folder that did not self-calibrate gains no self_calibration."""
+    """self_calibrate, and the highlights and the bound on the field of view of a recorded
+    self_calibration, were off before they existed; a folder that did not self-calibrate gains
+    no self_calibration."""
     recorded = recorded_config(RunConfig(self_calibrate=True))
-    del recorded["self_calibration"]["highlights"]
-    assert made_with(recorded) == recorded_config(RunConfig(self_calibrate=True))
+    for added in ("highlights", "min_field_of_view"):
+        del recorded["self_calibration"][added]
+    before = RunConfig(self_calibrate=True, self_calibration=replace(
+        RunConfig().self_calibration, min_field_of_view=0.0))
+    assert made_with(recorded) == recorded_config(before) != recorded_config(
+        RunConfig(self_calibrate=True))
     plain = recorded_config(RunConfig())
     del plain["self_calibrate"]
     assert made_with(plain) == recorded_config(RunConfig())

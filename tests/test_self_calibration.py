@@ -63,11 +63,16 @@ def test_stretches_are_evenly_spaced_and_do_not_overlap(count, windows, length, 
     assert stretch_starts(count, config) == starts
 
 
-def calibration(*stretches: tuple[float, float | None]) -> SelfCalibration:
-    """From (fraction placed, fx) per stretch, at 128x160 with fy = 1.25 fx."""
+UNBOUNDED = SelfCalibrationConfig(min_field_of_view=0)
+
+
+def calibration(*stretches: tuple[float, float | None],
+                config: SelfCalibrationConfig = UNBOUNDED) -> SelfCalibration:
+    """From (fraction placed, fx) per stretch, at 128x160 with fy = 1.25 fx (by default with no
+    bound on the field of view, so that any fx can agree)."""
     return SelfCalibration(600, [Stretch(120 * i, 120, r, f)
                                  for i, (r, f) in enumerate(stretches)],
-                           SelfCalibrationConfig(), (128, 160), 1.25)
+                           config, (128, 160), 1.25)
 
 
 def test_K_is_the_median_of_the_largest_group_of_mapped_stretches_that_agree():
@@ -109,6 +114,24 @@ def test_no_consensus_no_K(stretches):
     assert found.describe().startswith("no consensus")
 
 
+def test_stretches_narrower_than_an_endoscope_do_not_count():
+    """At 160 px wide, 620 and 621 px (15 degrees, as on the real clip) agree but are too
+    narrow; 60 degrees is fx = 80 / tan(30 degrees) = 138.6 px."""
+    stretches = [(1.0, 620.0), (1.0, 621.0), (1.0, 138.0), (1.0, 139.0)]
+    found = calibration(*stretches, config=SelfCalibrationConfig())
+    assert [s.fx for s in found.mapped] == [138.0]
+    assert found.field_of_view(found.stretches[2]) == pytest.approx(60.2, abs=0.05)
+    assert found.K is None
+    assert "the stretches from frames [0, 120, 360] mapped at a field of view under 60 " \
+           "degrees, too narrow for an endoscope" in found.describe()
+    unbounded = calibration(*stretches)
+    assert unbounded.K[0, 0] == pytest.approx(620.5)
+    # A record made before the bound had none: read back under its own rule, it agrees.
+    record = found.record()
+    del record["config"]["min_field_of_view"]
+    assert SelfCalibration.from_record(record).K[0, 0] == pytest.approx(620.5)
+
+
 def test_eval_depth_records_are_pooled_by_name_and_a_name_in_two_is_refused(tmp_path):
     records = {name: calibration((1.0, f), (1.0, f + 1)).record()
                for name, f in (("set/proc_0000", 50.0), ("set/proc_0001", 60.0))}
@@ -132,7 +155,8 @@ def test_a_video_too_short_for_two_stretches_is_not_mapped():
 @pytest.mark.parametrize("fields", [dict(windows=0), dict(windows=1), dict(length=1),
                                     dict(min_registered=0), dict(min_registered=1.5),
                                     dict(agreement=0), dict(min_agreeing=0),
-                                    dict(contrast=-1), dict(contrast_tiles=0)])
+                                    dict(contrast=-1), dict(contrast_tiles=0),
+                                    dict(min_field_of_view=-1), dict(min_field_of_view=180)])
 def test_a_config_that_cannot_work_is_refused(fields):
     with pytest.raises(InputError, match="self-calibration needs"):
         SelfCalibrationConfig(**fields)
