@@ -5,11 +5,12 @@ The run's self-calibration stage maps up to 5 stretches of 120 frames per proced
 each). Where eval-depth's JSONs hold that mapping for the same procedures, this writes each
 work folder's `self_calibration.json` from them, so the stage is read rather than run again,
 then evaluates as `c2d2 eval` does (`hybrid.evaluate.evaluate_pipeline`; out/eval.json). The
-run's own rule (`RunConfig.self_calibration`: 3 agreeing) is applied to the stretches as
-mapped. A record must have been mapped with the run's stretches and contrast, and on as many
-frames, at the depth network's size. With `--check N` the first N procedures are mapped by
-the run itself instead (in a fresh `--out`), and their stretches compared with the records'
-(the two map the same frames when the run's ingest keeps the simulator's frames whole).
+run's own rule (`RunConfig.self_calibration`: 3 agreeing, at 60 degrees or more) is applied
+to the stretches as mapped. A record must have been mapped with the run's stretches and
+contrast, and on as many frames, at the depth network's size. With `--check N` the first N
+procedures are mapped by the run itself instead (in a fresh `--out`), and their stretches
+compared with the records' (the two map the same frames when the run's ingest keeps the
+simulator's frames whole).
 
     python benchmarks/pipeline_self_calibration.py --data data/heldout \\
         --out data/eval-heldout-view --coverage-checkpoint MODEL \\
@@ -23,11 +24,11 @@ import json
 from dataclasses import asdict
 from pathlib import Path
 
-from fusion.self_calibration import eval_records
+from fusion.self_calibration import config_of_record, eval_records
 from hybrid import workdir as W
 from hybrid.dataset import Procedure
 from hybrid.evaluate import evaluate_pipeline, work_folder
-from hybrid.pipeline import SELF_CALIBRATION_ADDED, Models, RunConfig
+from hybrid.pipeline import Models, RunConfig
 from learned.train import expand_inputs, input_name
 
 
@@ -36,8 +37,7 @@ def check_record(name: str, record: dict, config: RunConfig, frames: int,
     """Refuse a record mapped otherwise than the run would map `frames` frames of `size`."""
     ours = {k: v for k, v in asdict(config.self_calibration).items()
             if k not in ("min_agreeing", "min_field_of_view")}  # the consensus's, not the map's
-    made = {**SELF_CALIBRATION_ADDED, **record["config"]}  # fields added since, as it was made
-    theirs = {k: made.get(k) for k in ours}
+    theirs = {k: v for k, v in asdict(config_of_record(record)).items() if k in ours}
     if theirs != ours or record["frames"] != frames or tuple(record["size"]) != size:
         raise SystemExit(f"{name}: its record was mapped with {theirs} on {record['frames']} "
                          f"frames of {record['size']}; the run maps {ours} on {frames} frames "

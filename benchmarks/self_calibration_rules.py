@@ -71,10 +71,10 @@ def main() -> None:
           f"{'head, same':>10s} {'used fx':>8s} {'head fx':>8s}")
     for agreement, least in itertools.product(args.agreement or [recorded.agreement],
                                               args.min_agreeing or [recorded.min_agreeing]):
-        config = replace(recorded, agreement=agreement, min_agreeing=least)
         rows = []
-        for name, calibration in found.items():
+        for name, calibration in found.items():  # each under its own rule but these two
             m = scored["procedures"][name]
+            config = replace(calibration.config, agreement=agreement, min_agreeing=least)
             K = replace(calibration, config=config).K
             self_cal = None if K is None else abs(K[0, 0] / m["fx_true"] - 1)
             rows.append((styles[name], self_cal, m["fx_head_rel"]))

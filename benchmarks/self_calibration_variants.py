@@ -25,7 +25,12 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from fusion.self_calibration import SelfCalibration, SelfCalibrationConfig, calibrate_sequence
+from fusion.self_calibration import (
+    SelfCalibration,
+    SelfCalibrationConfig,
+    calibrate_sequence,
+    config_of_record,
+)
 from learned.config import DepthConfig, parse_overrides
 from learned.frames import open_sequence
 
@@ -34,7 +39,7 @@ def summary(scored: dict) -> None:
     """Per style: consensus count and error, mapped stretches near the true fx."""
     rows: dict[str, list] = {}
     for name, record in scored["self_calibration"].items():
-        found = SelfCalibration.from_record(record, SelfCalibrationConfig(**record["config"]))
+        found = SelfCalibration.from_record(record)
         true = scored["procedures"][name]["fx_true"]
         K = found.K
         near = [abs(s.fx / true - 1) <= found.config.agreement for s in found.mapped]
@@ -69,7 +74,7 @@ def main() -> None:
     for path in args.data:
         name = f"{path.parent.name}/{path.name}"
         if name in scored["self_calibration"]:  # mapped by an earlier run of this command
-            if SelfCalibrationConfig(**scored["self_calibration"][name]["config"]) != config:
+            if config_of_record(scored["self_calibration"][name]) != config:
                 raise SystemExit(f"{args.out} holds {name} mapped with another config: "
                                  f"use another --out")
             continue

@@ -6,12 +6,13 @@ frames well, but some stretches map with f far off. So up to `windows` evenly sp
 non-overlapping stretches of `length` consecutive frames are mapped, each on its own
 (`fusion.sfm_baseline.run_sfm`, frames as the network sees them with their lightness
 equalised by CLAHE, and the image region as the camera mask). A stretch is *mapped* when the
-mapper places at least `min_registered` of its frames. The estimate needs a consensus: the
-largest group of mapped stretches whose focal lengths all lie within `agreement` of each other
-(largest over smallest) must hold at least `min_agreeing` of them; K is then that group's
-median f, with the principal point at the image centre. Otherwise there is no estimate.
-Each stretch also keeps figures of its map's quality and of the camera's motion, which need
-no ground truth (`Stretch`).
+mapper places at least `min_registered` of its frames and its f gives a horizontal field of
+view of at least `min_field_of_view` (an endoscope is wide-angle). The estimate needs a
+consensus: the largest group of mapped stretches whose focal lengths all lie within
+`agreement` of each other (largest over smallest) must hold at least `min_agreeing` of them;
+K is then that group's median f, with the principal point at the image centre. Otherwise
+there is no estimate. Each stretch also keeps figures of its map's quality and of the
+camera's motion, which need no ground truth (`Stretch`).
 """
 
 from __future__ import annotations
@@ -65,9 +66,10 @@ class SelfCalibrationConfig:
     min_field_of_view: float = 60.0
     """Narrowest horizontal field of view (degrees, across the frames as given) of a stretch
     that counts as mapped. Colonoscopes are built wide-angle (140-170 degrees by their makers'
-    specifications); 60 still admits a crop of a fifth of the width of a 140-degree image. The
-    simulator's cameras span 90-130; the real clip's stretches mapped at 12-53
-    (`docs/depth.md`, "Real footage")."""
+    specifications); 60 still admits a crop of 21% of the width of a 140-degree pinhole image
+    (of about half a 140-degree fisheye image's, which the mapper's pinhole camera reads at
+    about 100). The simulator's cameras span 90-130; the real clip's stretches mapped at
+    12-53 (`docs/depth.md`, "Real footage")."""
     highlights: bool = False
     """Keep SIFT off each frame's specular highlights (`highlight_free`): they slide over
     the wall as the light moves with the camera, so features on them break the static scene
@@ -123,14 +125,14 @@ class SelfCalibration:
 
     @property
     def mapped(self) -> list[Stretch]:
-        """Stretches with at least `min_registered` of their frames placed, at a focal length
-        no narrower than `min_field_of_view`."""
+        """Stretches with at least `min_registered` of their frames placed, whose fx gives a
+        field of view of at least `min_field_of_view`."""
         return [s for s in self.stretches
                 if s.fx is not None and s.registered >= self.config.min_registered
                 and self.field_of_view(s) >= self.config.min_field_of_view]
 
     def field_of_view(self, stretch: Stretch) -> float:
-        """Horizontal field of view (degrees) of a stretch's focal length."""
+        """Horizontal field of view (degrees) of a stretch's fx (one that built a model)."""
         return float(np.degrees(2 * np.arctan(self.size[1] / 2 / stretch.fx)))
 
     @property
@@ -166,7 +168,8 @@ class SelfCalibration:
         K = self.K
         head = ("no consensus" if K is None else
                 f"fx {K[0, 0]:.1f}, fy {K[1, 1]:.1f} at the network's size")
-        narrow = [s.start for s in self.stretches if s.fx is not None
+        narrow = [s.start for s in self.stretches
+                  if s.fx is not None and s.registered >= self.config.min_registered
                   and self.field_of_view(s) < self.config.min_field_of_view]
         if narrow:
             head += (f"; the stretches from frames {narrow} mapped at a field of view under "
@@ -179,10 +182,8 @@ class SelfCalibration:
                     ) -> SelfCalibration:
         """Back from `record()`, under its own config or another one (the stretches as
         mapped; nothing is mapped again)."""
-        if config is None:  # records made before the contrast step mapped without it, and
-            # those before the bound on the field of view had none
-            config = SelfCalibrationConfig(**{"contrast": 0.0, "min_field_of_view": 0.0,
-                                              **record["config"]})
+        if config is None:
+            config = config_of_record(record)
         return cls(record["frames"], [Stretch(**s) for s in record["stretches"]], config,
                    tuple(record["size"]), record["fy_over_fx"])
 
@@ -195,6 +196,16 @@ class SelfCalibration:
                 "mapped": [s.start for s in self.mapped],
                 "agreeing": [s.start for s in self.agreeing],
                 "K": None if K is None else K.tolist()}
+
+
+FIELDS_ADDED = {"contrast": 0.0, "min_field_of_view": 0.0, "highlights": False}
+"""Fields added to SelfCalibrationConfig since records were first kept, each with the value
+that gives what records made before it did (no contrast step, no bound, no masks)."""
+
+
+def config_of_record(record: dict) -> SelfCalibrationConfig:
+    """The config a `SelfCalibration.record()` was made under, fields added since included."""
+    return SelfCalibrationConfig(**{**FIELDS_ADDED, **record["config"]})
 
 
 def eval_records(paths: list[Path]) -> dict[str, dict]:

@@ -31,8 +31,8 @@ SelfCalibrate = Annotated[bool, typer.Option(
     "--self-calibrate", help="Take K from structure from motion on up to 5 stretches of 120 "
     "frames (fusion/self_calibration.py; 1-4 minutes a video on 2 CPU cores) instead of the "
     "network's intrinsics head. Without 2 stretches that map and agree (dark, textureless or "
-    "short video) the head's K is kept, with a warning; intrinsics.json's 'source' says "
-    "which.")]
+    "short video; a stretch mapped at a field of view under 60 degrees does not count) the "
+    "head's K is kept, with a warning; intrinsics.json's 'source' says which.")]
 Contrast = Annotated[float | None, typer.Option(
     min=0, help="With --self-calibrate: the clip limit of the CLAHE on each frame's lightness "
     "before SIFT (0: the frames as they are; default: fusion.self_calibration's, 3).")]
@@ -40,9 +40,9 @@ Contrast = Annotated[float | None, typer.Option(
 ViewSelfCalibrate = Annotated[bool, typer.Option(
     "--self-calibrate", help="Give coverage networks trained with field_of_view=true and "
     "view_hidden the video's field of view, by structure from motion on up to 5 stretches of "
-    "120 frames where at least 3 agree (1-4 minutes a video on 2 CPU cores; "
-    "self_calibration.json); otherwise they run with it hidden. The geometric branch keeps "
-    "the intrinsics head's K.")]
+    "120 frames where at least 3 agree, each at 60 degrees or more (1-4 minutes a video on 2 "
+    "CPU cores; self_calibration.json); otherwise they run with it hidden. The geometric "
+    "branch keeps the intrinsics head's K.")]
 PipelineDepth = Annotated[Path | None, typer.Option(help="Depth model (default: shipped).")]
 PipelineCoverage = Annotated[Path | None, typer.Option(
     help="Coverage model, e.g. one adapted with `c2d2 adapt` (default: shipped); it must read "

@@ -31,7 +31,12 @@ import torch
 
 from fusion.odometry import OdometryConfig, refine_relative_poses
 from fusion.posegraph import PoseGraphConfig, smooth_trajectory
-from fusion.self_calibration import SelfCalibration, SelfCalibrationConfig, calibrate_sequence
+from fusion.self_calibration import (
+    FIELDS_ADDED,
+    SelfCalibration,
+    SelfCalibrationConfig,
+    calibrate_sequence,
+)
 from hybrid import __version__
 from hybrid import workdir as W
 from hybrid.coverage import DELTA_PAIRS_CM
@@ -92,7 +97,8 @@ class RunConfig:
         default_factory=lambda: SelfCalibrationConfig(min_agreeing=3))
     """Its stretches, and the consensus it needs: 3 agreeing stretches, the bound chosen on the
     training procedures' self-calibration (docs/coverage.md, "Reading the field of view at
-    inference"), where `c2d2 depth --self-calibrate` takes 2."""
+    inference"), where `c2d2 depth --self-calibrate` takes 2, each at a field of view of 60
+    degrees or more."""
     odometry: OdometryConfig = field(default_factory=OdometryConfig)
     posegraph: PoseGraphConfig = field(default_factory=PoseGraphConfig)
     reconstruction: ReconstructionConfig = field(default_factory=ReconstructionConfig)
@@ -507,27 +513,33 @@ def _source_identity(source: Path) -> dict:
     return identity
 
 
-def _differing(before: dict, now: dict) -> str:
-    """The top-level settings in which a work folder's configuration differs from the run's."""
-    names = [key if key in before else f"{key}, which it does not record (a setting added to "
-             f"c2d2 since it was made, or one it did not use)"
-             for key in sorted(before.keys() | now.keys())
-             if key not in now or before.get(key) != now[key]]
+def _differing(before: dict, now: dict, prefix: str = "") -> str:
+    """The settings in which a work folder's configuration differs from the run's (those of
+    a group both record, such as self_calibration, by name)."""
+    names = []
+    for key in sorted(before.keys() | now.keys()):
+        if key in now and before.get(key) == now[key]:
+            continue
+        if isinstance(before.get(key), dict) and isinstance(now.get(key), dict):
+            names.append(_differing(before[key], now[key], f"{prefix}{key}."))
+        else:
+            names.append(f"{prefix}{key}" if key in before else f"{prefix}{key}, which it does "
+                         f"not record (a setting added to c2d2 since it was made, or one it did "
+                         f"not use)")
     return "; ".join(names)
 
 
 SETTINGS_ADDED = {"self_calibrate": False}
 """Settings added to RunConfig since work folders were first made, each with the value that
 computes what runs made before it did: a folder that does not record one was made with it."""
-SELF_CALIBRATION_ADDED = {"highlights": False, "min_field_of_view": 0.0}
-"""The same for the fields of a recorded `self_calibration`."""
 
 
 def made_with(recorded: dict) -> dict:
-    """A folder's recorded config with the settings added since filled in as it was made."""
+    """A folder's recorded config with the settings added since filled in as it was made
+    (those of self_calibration by `fusion.self_calibration.FIELDS_ADDED`)."""
     config = {**SETTINGS_ADDED, **recorded}
     if "self_calibration" in config:
-        config["self_calibration"] = {**SELF_CALIBRATION_ADDED, **config["self_calibration"]}
+        config["self_calibration"] = {**FIELDS_ADDED, **config["self_calibration"]}
     return config
 
 

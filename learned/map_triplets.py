@@ -235,7 +235,8 @@ def _agreeing(found: np.lib.npyio.NpzFile, seq: FrameSequence) -> np.ndarray:
                  for start, placed, f in zip(found["starts"], found["registered"], found["fx"],
                                              strict=True)]
     calibration = SelfCalibration(seq.num_frames, stretches, SelfCalibrationConfig(
-        windows=max(len(stretches), 2), length=length), seq.size, float(found["fy_over_fx"]))
+        windows=max(len(stretches), 2), length=length, min_field_of_view=0.0), seq.size,
+        float(found["fy_over_fx"]))  # no bound on the field of view, as the maps were made
     agreeing = [s.start // length for s in calibration.agreeing] if calibration.K is not None \
         else []
     return np.where(np.isin(found["stretch"], agreeing), found["stretch"], -1)

@@ -31,6 +31,7 @@ from hybrid.ingest import Ingested
 from hybrid.pipeline import (
     Models,
     RunConfig,
+    _differing,
     made_with,
     recorded_config,
     run_video,
@@ -430,6 +431,15 @@ def test_cli_resumes_a_run_made_before_self_calibration_was_a_setting(pipeline_r
     result = runner.invoke(app, ["run", str(procedure.path), "--out", str(work)])
     assert result.exit_code == 0, result.output
     assert (work / W.COVERAGE_CSV).read_bytes() == (out / W.COVERAGE_CSV).read_bytes()
+
+
+def test_a_differing_setting_inside_a_group_is_named():
+    before = {"fps": 30, "self_calibration": {"contrast": 3.0, "min_field_of_view": 0.0}}
+    now = {"fps": 30, "self_calibration": {"contrast": 3.0, "min_field_of_view": 60.0},
+           "insertion": False}
+    assert _differing(before, now) == ("insertion, which it does not record (a setting added "
+                                       "to c2d2 since it was made, or one it did not use); "
+                                       "self_calibration.min_field_of_view")
 
 
 def test_settings_added_since_a_folder_was_made_are_filled_in_as_it_was_made():

@@ -117,11 +117,12 @@ def test_no_consensus_no_K(stretches):
 def test_stretches_narrower_than_an_endoscope_do_not_count():
     """At 160 px wide, 620 and 621 px (15 degrees, as on the real clip) agree but are too
     narrow; 60 degrees is fx = 80 / tan(30 degrees) = 138.6 px."""
-    stretches = [(1.0, 620.0), (1.0, 621.0), (1.0, 138.0), (1.0, 139.0)]
+    stretches = [(1.0, 620.0), (1.0, 621.0), (1.0, 138.0), (1.0, 139.0), (0.3, 700.0)]
     found = calibration(*stretches, config=SelfCalibrationConfig())
     assert [s.fx for s in found.mapped] == [138.0]
     assert found.field_of_view(found.stretches[2]) == pytest.approx(60.2, abs=0.05)
     assert found.K is None
+    # The last placed too few frames to be mapped whatever its f: it is not named.
     assert "the stretches from frames [0, 120, 360] mapped at a field of view under 60 " \
            "degrees, too narrow for an endoscope" in found.describe()
     unbounded = calibration(*stretches)
