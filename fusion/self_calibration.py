@@ -6,8 +6,8 @@ frames well, but some stretches map with f far off. So up to `windows` evenly sp
 non-overlapping stretches of `length` consecutive frames are mapped, each on its own
 (`fusion.sfm_baseline.run_sfm`, frames as the network sees them with their lightness
 equalised by CLAHE, and the image region as the camera mask). A stretch is *mapped* when the
-mapper places at least `min_registered` of its frames and its f gives a horizontal field of
-view of at least `min_field_of_view` (an endoscope is wide-angle). The estimate needs a
+mapper places at least `min_registered` of its frames and its f gives a field of view of at
+least `min_field_of_view` (an endoscope is wide-angle). The estimate needs a
 consensus: the largest group of mapped stretches whose focal lengths all lie within
 `agreement` of each other (largest over smallest) must hold at least `min_agreeing` of them;
 K is then that group's median f, with the principal point at the image centre. Otherwise
@@ -64,12 +64,13 @@ class SelfCalibrationConfig:
     little contrast to map otherwise."""
     contrast_tiles: int = 4
     min_field_of_view: float = 60.0
-    """Narrowest horizontal field of view (degrees, across the frames as given) of a stretch
-    that counts as mapped. Colonoscopes are built wide-angle (140-170 degrees by their makers'
-    specifications); 60 still admits a crop of 21% of the width of a 140-degree pinhole image
-    (of about half a 140-degree fisheye image's, which the mapper's pinhole camera reads at
-    about 100). The simulator's cameras span 90-130; the real clip's stretches mapped at
-    12-53 (`docs/depth.md`, "Real footage")."""
+    """Narrowest field of view (degrees, the wider of the two across the frames as given, so
+    that a crop's orientation does not matter) of a stretch that counts as mapped.
+    Colonoscopes are built wide-angle (140-170 degrees by their makers' specifications); 60
+    still admits a crop of 21% of the width of a 140-degree pinhole image (of about half a
+    140-degree fisheye image's, which the mapper's pinhole camera reads at about 100). The
+    simulator's cameras span 90-130; the real clip's stretches mapped at 12-53
+    (`docs/depth.md`, "Real footage")."""
     highlights: bool = False
     """Keep SIFT off each frame's specular highlights (`highlight_free`): they slide over
     the wall as the light moves with the camera, so features on them break the static scene
@@ -132,8 +133,11 @@ class SelfCalibration:
                 and self.field_of_view(s) >= self.config.min_field_of_view]
 
     def field_of_view(self, stretch: Stretch) -> float:
-        """Horizontal field of view (degrees) of a stretch's fx (one that built a model)."""
-        return float(np.degrees(2 * np.arctan(self.size[1] / 2 / stretch.fx)))
+        """Field of view (degrees) of a stretch's fx (one that built a model), the wider of
+        the horizontal and the vertical."""
+        height, width = self.size
+        half = max(width / 2 / stretch.fx, height / 2 / (stretch.fx * self.fy_over_fx))
+        return float(np.degrees(2 * np.arctan(half)))
 
     @property
     def agreeing(self) -> list[Stretch]:

@@ -127,6 +127,11 @@ def test_stretches_narrower_than_an_endoscope_do_not_count():
            "degrees, too narrow for an endoscope" in found.describe()
     unbounded = calibration(*stretches)
     assert unbounded.K[0, 0] == pytest.approx(620.5)
+    # The wider angle counts: in frames three times as tall as wide (fy = fx), 620 px spans
+    # 2 atan(240 / 620) = 42.3 degrees vertically, 138 px 120 degrees.
+    tall = SelfCalibration(600, found.stretches, SelfCalibrationConfig(), (480, 160), 1.0)
+    assert tall.field_of_view(tall.stretches[0]) == pytest.approx(42.3, abs=0.05)
+    assert [s.fx for s in tall.mapped] == [138.0, 139.0]
     # A record made before the bound had none: read back under its own rule, it agrees.
     record = found.record()
     del record["config"]["min_field_of_view"]
