@@ -6,11 +6,12 @@ more than the recorded `agreement` from the true fx (and how many of these had e
 placed), and how many procedures mapped any stretch (and their first one). Then, per style and
 over all procedures: how many reached a consensus, the fx error of the self-calibrated K on
 those and of the intrinsics head on the same procedures, and the fx error of what a user gets
-(the self-calibrated K where there is one, else the head's). Each --agreement /
---min-agreeing pair is applied to the same recorded stretches.
+(the self-calibrated K where there is one, else the head's). Each combination of
+--agreement, --min-agreeing and --min-field-of-view is applied to the same recorded
+stretches; what is not given stays each record's own rule (column fov: "own").
 
     .venv/bin/python benchmarks/self_calibration_rules.py --eval EVAL.json [EVAL2.json ...] \\
-        --agreement 0.1 0.15 0.2 --min-agreeing 1 2 3
+        --agreement 0.1 0.15 0.2 --min-agreeing 1 2 3 [--min-field-of-view 0 60]
 """
 
 from __future__ import annotations
@@ -56,6 +57,7 @@ def main() -> None:
                         help="folder holding the datasets the JSON's names refer to")
     parser.add_argument("--agreement", type=float, nargs="+", default=None)
     parser.add_argument("--min-agreeing", type=int, nargs="+", default=None)
+    parser.add_argument("--min-field-of-view", type=float, nargs="+", default=None)
     args = parser.parse_args()
     scored = {"procedures": {}, "self_calibration": {}}
     for path in args.eval:
@@ -67,14 +69,16 @@ def main() -> None:
     recorded = next(iter(found.values())).config
     styles = {name: Procedure.open(args.data_root / name).style for name in found}
     print_stretches(found, {n: scored["procedures"][n]["fx_true"] for n in found}, styles)
-    print(f"{'agreement':>9s} {'min':>3s} {'style':6s} {'consensus':>9s} {'self-cal fx':>11s} "
-          f"{'head, same':>10s} {'used fx':>8s} {'head fx':>8s}")
-    for agreement, least in itertools.product(args.agreement or [recorded.agreement],
-                                              args.min_agreeing or [recorded.min_agreeing]):
+    print(f"{'agreement':>9s} {'min':>3s} {'fov':>4s} {'style':6s} {'consensus':>9s} "
+          f"{'self-cal fx':>11s} {'head, same':>10s} {'used fx':>8s} {'head fx':>8s}")
+    for agreement, least, bound in itertools.product(
+            args.agreement or [recorded.agreement], args.min_agreeing or [recorded.min_agreeing],
+            args.min_field_of_view or [None]):
         rows = []
-        for name, calibration in found.items():  # each under its own rule but these two
+        for name, calibration in found.items():  # each under its own rule but these
             m = scored["procedures"][name]
-            config = replace(calibration.config, agreement=agreement, min_agreeing=least)
+            config = replace(calibration.config, agreement=agreement, min_agreeing=least,
+                             **({} if bound is None else {"min_field_of_view": bound}))
             K = replace(calibration, config=config).K
             self_cal = None if K is None else abs(K[0, 0] / m["fx_true"] - 1)
             rows.append((styles[name], self_cal, m["fx_head_rel"]))
@@ -82,7 +86,8 @@ def main() -> None:
             picked = [r for r in rows if style in ("all", r[0])]
             agreed = [r for r in picked if r[1] is not None]
             used = [r[2] if r[1] is None else r[1] for r in picked]
-            print(f"{agreement:9.2f} {least:3d} {style:6s} {len(agreed):4d}/{len(picked):<4d} "
+            print(f"{agreement:9.2f} {least:3d} {'own' if bound is None else f'{bound:g}':>4s} "
+                  f"{style:6s} {len(agreed):4d}/{len(picked):<4d} "
                   f"{percent([r[1] for r in agreed]):>11s} "
                   f"{percent([r[2] for r in agreed]):>10s} "
                   f"{percent(used):>8s} {percent([r[2] for r in picked]):>8s}")

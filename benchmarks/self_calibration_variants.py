@@ -31,8 +31,10 @@ from fusion.self_calibration import (
     calibrate_sequence,
     config_of_record,
 )
+from hybrid.dataset import Procedure
 from learned.config import DepthConfig, parse_overrides
 from learned.frames import open_sequence
+from learned.train import input_name
 
 
 def summary(scored: dict) -> None:
@@ -72,7 +74,7 @@ def main() -> None:
               else {"procedures": {}, "self_calibration": {}})
     size = (DepthConfig().height, DepthConfig().width)
     for path in args.data:
-        name = f"{path.parent.name}/{path.name}"
+        name = input_name(path)
         if name in scored["self_calibration"]:  # mapped by an earlier run of this command
             if config_of_record(scored["self_calibration"][name]) != config:
                 raise SystemExit(f"{args.out} holds {name} mapped with another config: "
@@ -82,8 +84,8 @@ def main() -> None:
         start = time.perf_counter()
         found = calibrate_sequence(seq, config, progress=True, workers=args.workers)
         print(f"{name}: {time.perf_counter() - start:.1f} s, {args.workers} worker(s)")
-        style = json.loads((path / "meta.json").read_text())["config"]["style"]
-        scored["procedures"][name] = {"fx_true": float(seq.camera.fx), "style": style,
+        scored["procedures"][name] = {"fx_true": float(seq.camera.fx),
+                                      "style": Procedure.open(path).style,
                                       **({"fx_head_rel": head[name]["fx_head_rel"]}
                                          if name in head else {})}
         scored["self_calibration"][name] = found.record()
