@@ -71,6 +71,10 @@ class SelfCalibrationConfig:
     140-degree fisheye image's, which the mapper's pinhole camera reads at about 100). The
     simulator's cameras span 90-130; the real clip's stretches mapped at 12-53
     (`docs/depth.md`, "Real footage")."""
+    initial_field_of_view: float = 0.0
+    """Field of view (degrees, across the frames' longer side) of the camera each stretch's
+    mapper starts from, before bundle adjustment refines f; 0 starts from COLMAP's default,
+    f = 1.2 x the longer side (45 degrees)."""
     highlights: bool = False
     """Keep SIFT off each frame's specular highlights (`highlight_free`): they slide over
     the wall as the light moves with the camera, so features on them break the static scene
@@ -80,10 +84,12 @@ class SelfCalibrationConfig:
         if (not 1 <= self.min_agreeing <= self.windows or self.length < 2
                 or not 0 < self.min_registered <= 1 or not self.agreement > 0
                 or not self.contrast >= 0 or self.contrast_tiles < 1
-                or not 0 <= self.min_field_of_view < 180):
+                or not 0 <= self.min_field_of_view < 180
+                or not 0 <= self.initial_field_of_view < 180):
             raise InputError(f"self-calibration needs 1 <= min_agreeing <= windows, length >= 2,"
                              f" 0 < min_registered <= 1, agreement > 0, contrast >= 0, "
-                             f"contrast_tiles >= 1 and 0 <= min_field_of_view < 180, got {self}")
+                             f"contrast_tiles >= 1, and min_field_of_view and "
+                             f"initial_field_of_view in [0, 180), got {self}")
 
 
 @dataclass(frozen=True)
@@ -202,9 +208,11 @@ class SelfCalibration:
                 "K": None if K is None else K.tolist()}
 
 
-FIELDS_ADDED = {"contrast": 0.0, "min_field_of_view": 0.0, "highlights": False}
+FIELDS_ADDED = {"contrast": 0.0, "min_field_of_view": 0.0, "highlights": False,
+                "initial_field_of_view": 0.0}
 """Fields added to SelfCalibrationConfig since records were first kept, each with the value
-that gives what records made before it did (no contrast step, no bound, no masks)."""
+that gives what records made before it did (no contrast step, no bound, no masks, COLMAP's
+start)."""
 
 
 def config_of_record(record: dict) -> SelfCalibrationConfig:
@@ -266,7 +274,8 @@ def self_calibrate(frame: Callable[[int], np.ndarray], count: int, region: np.nd
         kept = ([square.mask(region & highlight_free(f)) for f in frames] if config.highlights
                 else None)
         return partial(_map_stretch, ids, [square(contrast_enhanced(f, config)) for f in frames],
-                       mask, kept, f"{name} frames {ids.start}-{ids.stop - 1}", square.scale[0])
+                       mask, kept, f"{name} frames {ids.start}-{ids.stop - 1}", square.scale[0],
+                       config.initial_field_of_view or None)
 
     bar = {"desc": f"self-calibrate {name}", "disable": not progress, "unit": "stretch"}
     if workers > 1 and len(spans) > 1:
@@ -290,11 +299,12 @@ def _start_mapper(log_level: int) -> None:
 
 
 def _map_stretch(ids: range, images: list[np.ndarray], mask: np.ndarray,
-                 frame_masks: list[np.ndarray] | None, name: str, scale: float) -> Stretch:
+                 frame_masks: list[np.ndarray] | None, name: str, scale: float,
+                 initial_field_of_view: float | None) -> Stretch:
     """One stretch as mapped; `scale` takes the mapper's f to the network's size."""
     with tempfile.TemporaryDirectory() as work:
         try:
-            sfm = run_sfm(images, mask, Path(work), name, frame_masks)
+            sfm = run_sfm(images, mask, Path(work), name, frame_masks, initial_field_of_view)
         except NoModel as err:  # this stretch is not mapped
             log.info("%s", err)
             return Stretch(ids.start, len(ids), 0.0, None)

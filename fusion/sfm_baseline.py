@@ -80,12 +80,16 @@ def verification_options() -> pycolmap.TwoViewGeometryOptions:
 
 
 def run_sfm(images: list[np.ndarray], mask: np.ndarray | None, work_dir: Path,
-            name: str = "frames", frame_masks: list[np.ndarray] | None = None) -> SfmResult:
+            name: str = "frames", frame_masks: list[np.ndarray] | None = None,
+            initial_field_of_view: float | None = None) -> SfmResult:
     """Structure from motion on consecutive RGB uint8 frames (H, W, 3) of one camera.
 
     mask: (H, W) bool, True where the image shows the scene (False on a black border), or None.
     frame_masks: one (H, W) bool per frame, True where its features may be kept (e.g. off
     specular highlights), or None.
+    initial_field_of_view: degrees across the frames' longer side of the camera the mapper
+    starts from (bundle adjustment then refines its f), or None for COLMAP's default start,
+    f = 1.2 x the longer side (45 degrees).
     work_dir is emptied of a previous run's database and model.
     """
     _check_images(images, mask, name)
@@ -94,6 +98,9 @@ def run_sfm(images: list[np.ndarray], mask: np.ndarray | None, work_dir: Path,
             for m in frame_masks)):
         raise InputError(f"{name}: frame_masks must hold one (H, W) bool per frame, "
                          f"{len(images)} of {np.shape(images[0])[:2]}")
+    if initial_field_of_view is not None and not 0 < initial_field_of_view < 180:
+        raise InputError(f"{name}: initial_field_of_view must lie in (0, 180) degrees, "
+                         f"got {initial_field_of_view}")
     work_dir = Path(work_dir)
     image_dir, model_dir = work_dir / "images", work_dir / "sparse"
     mask_dir = work_dir / "masks"
@@ -108,6 +115,8 @@ def run_sfm(images: list[np.ndarray], mask: np.ndarray | None, work_dir: Path,
         cv2.imwrite(str(image_dir / file), cv2.cvtColor(image, cv2.COLOR_RGB2BGR))
     reader = pycolmap.ImageReaderOptions()
     reader.camera_model = CAMERA_MODEL
+    if initial_field_of_view is not None:
+        reader.default_focal_length_factor = 0.5 / np.tan(np.radians(initial_field_of_view) / 2)
     if mask is not None:
         reader.camera_mask_path = str(work_dir / "mask.png")
         cv2.imwrite(reader.camera_mask_path, mask.astype(np.uint8) * 255)

@@ -162,7 +162,9 @@ def test_a_video_too_short_for_two_stretches_is_not_mapped():
                                     dict(min_registered=0), dict(min_registered=1.5),
                                     dict(agreement=0), dict(min_agreeing=0),
                                     dict(contrast=-1), dict(contrast_tiles=0),
-                                    dict(min_field_of_view=-1), dict(min_field_of_view=180)])
+                                    dict(min_field_of_view=-1), dict(min_field_of_view=180),
+                                    dict(initial_field_of_view=-1),
+                                    dict(initial_field_of_view=180)])
 def test_a_config_that_cannot_work_is_refused(fields):
     with pytest.raises(InputError, match="self-calibration needs"):
         SelfCalibrationConfig(**fields)
@@ -214,25 +216,28 @@ def test_stretches_mapped_in_parallel_processes_are_those_mapped_in_one(tube_fra
     assert len(alone.mapped) == 2
 
 
-@pytest.mark.parametrize("highlights", [False, True])
-def test_highlights_reach_the_mapper_as_frame_masks(highlights, tube_frames, monkeypatch):
+@pytest.mark.parametrize("highlights, start", [(False, 0.0), (True, 120.0)])
+def test_highlights_and_the_start_reach_the_mapper(highlights, start, tube_frames, monkeypatch):
     """With the option each frame's mask is the image region off its highlights; without it,
     none. (The tube's grey texture of full contrast is not tissue: the top-hat takes 45% of
-    it, so this checks the masks, not the map.)"""
+    it, so this checks the masks, not the map.) A start of 0 is COLMAP's own (None)."""
     given = []
 
-    def recorded(images, mask, work, name, frame_masks=None):
-        given.append(frame_masks)
-        return run_sfm(images, mask, work, name, frame_masks)
+    def recorded(images, mask, work, name, frame_masks, initial_field_of_view):
+        given.append((frame_masks, initial_field_of_view))
+        return run_sfm(images, mask, work, name, frame_masks, initial_field_of_view)
 
     monkeypatch.setattr("fusion.self_calibration.run_sfm", recorded)
     frames = tube_frames[:12]
-    config = SelfCalibrationConfig(windows=1, length=12, min_agreeing=1, highlights=highlights)
+    config = SelfCalibrationConfig(windows=1, length=12, min_agreeing=1, highlights=highlights,
+                                   initial_field_of_view=start)
     self_calibrate(frames.__getitem__, 12, MASK, "tube", config=config)
+    ((masks, initial),) = given
     if highlights:
-        np.testing.assert_array_equal(given[0], [MASK & highlight_free(f) for f in frames])
+        np.testing.assert_array_equal(masks, [MASK & highlight_free(f) for f in frames])
+        assert initial == 120.0
     else:
-        assert given == [None]
+        assert masks is None and initial is None
 
 
 def test_a_stretch_keeps_its_map_quality_and_the_true_turn_of_the_camera(tube_frames):

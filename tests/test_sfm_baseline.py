@@ -52,6 +52,19 @@ def test_frame_masks_keep_features_off_masked_pixels(tmp_path):
     assert len(columns) > 100 and columns.min() >= MASK.shape[1] // 2 - 0.5
 
 
+def test_the_mapper_starts_from_the_given_field_of_view_and_refines_f(tmp_path):
+    """Started from a 150-degree camera (f = 80 / tan 75 = 21.4 px; the truth is 80 px, 90
+    degrees across the 160-px width), bundle adjustment still finds the true f."""
+    poses = np.stack([pose_at(i) for i in range(FRAMES)])
+    texture = wall_texture()
+    result = run_sfm([render(p, texture) for p in poses], MASK, tmp_path,
+                     initial_field_of_view=150)
+    (camera,) = pycolmap.Database.open(tmp_path / "database.db").read_all_cameras()
+    assert camera.params[0] == pytest.approx(80 / np.tan(np.radians(75)))
+    assert result.registered.all()
+    assert abs(result.K[0, 0] - FOCAL) / FOCAL < 0.05
+
+
 def test_sfm_without_texture_raises(tmp_path):
     with pytest.raises(InputError, match="no model"):
         run_sfm([np.full((64, 80, 3), 128, np.uint8)] * 4, None, tmp_path, name="grey")
@@ -75,3 +88,9 @@ def test_bad_input_is_named(images, mask, match, tmp_path):
 def test_frame_masks_of_the_wrong_count_or_size_are_refused(frame_masks, tmp_path):
     with pytest.raises(InputError, match="frame_masks"):
         run_sfm([np.zeros((8, 8, 3), np.uint8)] * 2, None, tmp_path, frame_masks=frame_masks)
+
+
+@pytest.mark.parametrize("degrees", [0, 180, -10])
+def test_a_start_that_is_not_a_field_of_view_is_refused(degrees, tmp_path):
+    with pytest.raises(InputError, match="initial_field_of_view"):
+        run_sfm([np.zeros((8, 8, 3), np.uint8)] * 2, None, tmp_path, initial_field_of_view=degrees)
