@@ -29,7 +29,7 @@ from tqdm import tqdm
 from hybrid.npyio import NpyWriter
 from hybrid.types import InputError
 from hybrid.workdir import write_json
-from learned.frames import IMAGE_SUFFIXES, VIDEO_SUFFIXES, Crop, check_fps, detect_region
+from learned.frames import VIDEO_SUFFIXES, Crop, check_fps, detect_region, image_files
 
 DARK_GREY = 30
 """Mean grey level (0-255) under which a frame is too dark."""
@@ -115,6 +115,9 @@ def ingest(path: Path, size: tuple[int, int], frames_out: Path, region: np.ndarr
         return cv2.resize(cut, (width, height), interpolation=interpolation)
 
     small_region = fit(region.astype(np.uint8), cv2.INTER_NEAREST).astype(bool)
+    # The Laplacian at the region's edge reads the step to the black border: keep it out.
+    sharpness_region = cv2.erode(small_region.astype(np.uint8), np.ones((5, 5), np.uint8)
+                                 ).astype(bool)
     stack = NpyWriter(frames_out, (count, height, width, 3), np.uint8)
     dark, bright, blurred = [], [], []
     for index, frame in enumerate(tqdm(source.open(), total=count, unit="frame",
@@ -127,7 +130,8 @@ def ingest(path: Path, size: tuple[int, int], frames_out: Path, region: np.ndarr
         inside = grey[small_region]
         dark.append(bool(inside.mean() < DARK_GREY))
         bright.append(bool((inside > 245).mean() > OVEREXPOSED_FRACTION))
-        blurred.append(bool(cv2.Laplacian(grey, cv2.CV_64F)[small_region].var() < BLUR_VARIANCE))
+        blurred.append(bool(cv2.Laplacian(grey, cv2.CV_64F)[sharpness_region].var()
+                            < BLUR_VARIANCE))
     if len(dark) != count:
         raise InputError(f"{path}: the second reading gave {len(dark)} frames, the first {count}; "
                          f"the file changed or decodes unreliably: copy or re-encode it")
@@ -157,9 +161,7 @@ def _open(path: Path, fps: float | None) -> _Source:
         return _Source(str(path), fps or proc.camera.fps, lambda: map(proc.rgb, frames),
                        proc.num_frames, region)
     if path.is_dir():
-        files = sorted(p for p in path.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
-        if not files:
-            raise InputError(f"{path}: no images ({', '.join(sorted(IMAGE_SUFFIXES))}) in folder")
+        files = image_files(path)
         return _Source(str(path), fps or 30.0, lambda: map(_read_image, files), len(files))
     if path.suffix.lower() not in VIDEO_SUFFIXES:
         raise InputError(f"{path}: not a video ({', '.join(sorted(VIDEO_SUFFIXES))}), a folder "

@@ -57,7 +57,7 @@ from learned.coverage_nets import (
     relative_scale,
     resample_features,
 )
-from learned.frames import IMAGE_SUFFIXES, FrameSequence, check_fps
+from learned.frames import FrameSequence, check_fps, image_files
 from learned.infer import aggregate_intrinsics, infer_sequence
 from learned.model import DepthModel, load_depth_model
 from learned.travel import chain_relative, no_travel, travel_features
@@ -106,7 +106,7 @@ class RunConfig:
 
     def __post_init__(self) -> None:
         check_fps(self.fps)
-        if not self.segment_seconds > 0:
+        if not 0 < self.segment_seconds < math.inf:
             raise InputError(f"segments must last a positive time, got {self.segment_seconds}")
         if not (math.isfinite(self.geometric_weight) and self.geometric_weight >= 0):
             raise InputError(f"the geometric coverage's weight must be a finite number, 0 or "
@@ -397,7 +397,7 @@ def video_features(source: Path, work: Path, config: RunConfig, models: Models,
     `work`), then the per-frame coverage features (N, 4, F); returns them with the frames per
     segment."""
     source, work = Path(source), Path(work)
-    _prepare(work, config, source, models)
+    _prepare(work, config, source, models, None)
     run = _Run(source, work, config, models, None, progress)
     if not (work / W.INGEST).is_file():
         run.ingest()
@@ -444,7 +444,7 @@ def run_video(source: Path, out: Path, config: RunConfig = RunConfig(),
     """
     source, out = Path(source), Path(out)
     models = models or Models.load(config)
-    _prepare(out, config, source, models)
+    _prepare(out, config, source, models, region)
     run = _Run(source, out, config, models, region, progress)
     stages: list[tuple[str, Callable[[], None], list[str]]] = [
         ("ingest", run.ingest, [W.FRAMES, W.INGEST, W.REGION]),
@@ -506,8 +506,8 @@ def _source_identity(source: Path) -> dict:
                 "size": source.stat().st_size if source.is_file() else None}
     if source.is_dir():
         meta = source / "meta.json"
-        images = sorted(p for p in source.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
-        listing = "\n".join(f"{p.name} {p.stat().st_size}" for p in images)
+        listing = "" if meta.is_file() else "\n".join(f"{p.name} {p.stat().st_size}"
+                                                        for p in image_files(source))
         identity["content"] = file_tag(meta) if meta.is_file() else \
             hashlib.sha256(listing.encode()).hexdigest()[:12]
     return identity
@@ -552,9 +552,19 @@ def recorded_config(config: RunConfig) -> dict:
     return recorded
 
 
-def _prepare(out: Path, config: RunConfig, source: Path, models: Models) -> None:
-    """Create the work directory; refuse one that holds a run of another video, config or
-    model files."""
+def _region_tag(region: np.ndarray | None) -> str | None:
+    """A given image region's identity (its shape and pixels), None when it is detected."""
+    if region is None:
+        return None
+    region = np.asarray(region, bool)
+    return hashlib.sha256(f"{region.shape}".encode() + np.packbits(region).tobytes()
+                          ).hexdigest()[:12]
+
+
+def _prepare(out: Path, config: RunConfig, source: Path, models: Models,
+             region: np.ndarray | None) -> None:
+    """Create the work directory; refuse one that holds a run of another video, image region
+    (--mask), config or model files."""
     try:
         out.mkdir(parents=True, exist_ok=True)
         probe = out / ".write-test"
@@ -566,7 +576,8 @@ def _prepare(out: Path, config: RunConfig, source: Path, models: Models) -> None
     saved = out / W.CONFIG
     identity = _source_identity(source)
     resolved = {"config": recorded_config(config), "source": identity,
-                "checkpoints": models.tags, "c2d2_version": __version__}
+                "region": _region_tag(region), "checkpoints": models.tags,
+                "c2d2_version": __version__}
     if saved.is_file():
         previous = json.loads(saved.read_text())
         before = previous.get("source", {}).get("path")
@@ -578,6 +589,15 @@ def _prepare(out: Path, config: RunConfig, source: Path, models: Models) -> None
                 "content" not in identity else "the run is by an earlier c2d2"
             raise InputError(f"{out} holds a run of {source} as it was before ({why}); use "
                              f"another --out or delete it to start again")
+        if previous.get("region") != resolved["region"]:  # runs before it was kept: detected
+            def told(tag: str | None) -> str:
+                return ("detected from the frames" if tag is None else
+                        f"given by a mask (SHA-256 prefix {tag})")
+
+            raise InputError(f"{out} holds a run whose image region was "
+                             f"{told(previous.get('region'))}, not "
+                             f"{told(resolved['region'])}; use another --out or delete it to "
+                             f"start again")
         before_config = made_with(previous.get("config") or {})
         if before_config != resolved["config"]:
             raise InputError(f"{out} holds a run made with another configuration (it differs "

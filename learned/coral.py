@@ -37,9 +37,10 @@ def coral_transform(source_mean: np.ndarray, source_cov: np.ndarray, target: np.
     if target.ndim != 2 or target.shape[1] != len(source_mean):
         raise InputError(f"target embeddings must be (n, {len(source_mean)}), got "
                          f"{target.shape}")
-    if len(target) < 2:
-        raise InputError(f"CORAL needs at least 2 target embeddings, got {len(target)}; give "
-                         f"more or longer unlabelled videos")
+    if len(target) <= target.shape[1]:  # fewer rows leave the target covariance singular
+        raise InputError(f"CORAL needs more target embeddings than their {target.shape[1]} "
+                         f"dimensions, got {len(target)}; give more or longer unlabelled "
+                         f"videos")
     if not np.isfinite(target).all():
         raise InputError("target embeddings contain NaN or infinite values")
     A = _power(_ridged(np.asarray(source_cov, np.float64)), 0.5) @ _power(

@@ -201,7 +201,7 @@ def _cached(path: Path, make) -> np.ndarray:
         return np.load(path)
     array = make()
     path.parent.mkdir(exist_ok=True)
-    tmp = path.with_name(path.name + ".tmp.npy")
+    tmp = path.with_name(f"{path.name}.{os.getpid()}.tmp.npy")  # one per process filling it
     np.save(tmp, array)
     os.replace(tmp, path)
     return array

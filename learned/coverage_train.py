@@ -276,22 +276,20 @@ def load_samples(data: list[Path], config: CoverageConfig, depth_checkpoint: Pat
 
 
 def check_no_shared_colon(data: list[Path], frame_data: list[Path]) -> None:
-    """Refuse frame_data procedures drawn from the same seed, index and colon settings as one
-    of data's: the same colon (whatever the style or frame step), so a held-out procedure
-    would be seen in training."""
-    def colons(paths: list[Path]) -> dict[str, Path]:
-        keys = {}
-        for path in expand_inputs(paths):
-            meta = Procedure.open(path).meta
-            keys[json.dumps([meta.get("seed"), meta.get("index"),
-                             meta.get("config", {}).get("colon")], sort_keys=True)] = path
-        return keys
-
-    main, extra = colons(data), colons(frame_data)
-    if shared := sorted(main.keys() & extra.keys()):
-        raise InputError(f"{extra[shared[0]]} has the colon of {main[shared[0]]} (same seed, "
-                         f"index and colon settings; {len(shared)} such procedures): simulate "
-                         f"the per-frame procedures with another --seed")
+    """Refuse two procedures drawn from the same seed, index and colon settings: the same
+    colon (whatever the style or frame step), so that one colon could lie on both sides of a
+    fold of `data`, or a held-out one of `data` among the per-frame procedures `frame_data`
+    that every model trains on. A procedure given twice is refused as well."""
+    seen: dict[str, Path] = {}
+    for path in expand_inputs(data) + expand_inputs(frame_data):
+        meta = Procedure.open(path).meta
+        key = json.dumps([meta.get("seed"), meta.get("index"), meta.get("config", {}).get("colon")],
+                         sort_keys=True)
+        if key in seen:
+            raise InputError(f"{path} has the colon of {seen[key]} (same seed, index and colon "
+                             f"settings): give each procedure once, and simulate procedures of "
+                             f"other styles or frame steps with another --seed")
+        seen[key] = path
 
 
 def recorded_config(record: dict) -> CoverageConfig:
@@ -341,8 +339,7 @@ def train_coverage(data: list[Path], out: Path, config: CoverageConfig,
         raise InputError(f"{out} holds a run with another config; resume it with the same "
                          f"options or use another --out")
     started = time.time()
-    if frame_data:
-        check_no_shared_colon(data, frame_data)
+    check_no_shared_colon(data, frame_data)
     samples = load_samples(data, config, depth_checkpoint, progress, device)
     frame_samples = load_samples(frame_data, config, depth_checkpoint, progress, device,
                                  frames_only=True) if frame_data else []

@@ -10,7 +10,9 @@ input's own pixels. A video is streamed into a temporary file of network-sized f
 from __future__ import annotations
 
 import logging
+import math
 import os
+import re
 import shutil
 import tempfile
 import weakref
@@ -136,8 +138,23 @@ class FrameSequence:
 
 def check_fps(fps: float | None) -> None:
     """A frame rate given for an input must be a positive number (None: the input's own)."""
-    if fps is not None and not fps > 0:
-        raise InputError(f"--fps must be positive, got {fps}")
+    if fps is not None and not 0 < fps < math.inf:
+        raise InputError(f"--fps must be a positive number, got {fps}")
+
+
+def image_files(path: Path) -> list[Path]:
+    """The images of a folder in frame order: names compared with their runs of digits as
+    numbers, so that 2.png comes before 10.png as it does before 010.png."""
+    files = [p for p in path.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES]
+    if not files:
+        raise InputError(f"{path}: no images ({', '.join(sorted(IMAGE_SUFFIXES))}) in folder")
+    return sorted(files, key=lambda p: (_numbered(p.name), p.name))
+
+
+def _numbered(name: str) -> list[str | int]:
+    """A name split into text and runs of digits, the digits as numbers (re.split with a group
+    alternates the two, so like parts meet like parts when names are compared)."""
+    return [int(part) if i % 2 else part for i, part in enumerate(re.split(r"(\d+)", name))]
 
 
 def open_sequence(path: Path, size: tuple[int, int], region: np.ndarray | None = None,
@@ -177,9 +194,7 @@ def _simulated(path: Path, size: tuple[int, int]) -> FrameSequence:
 
 def _image_folder(path: Path, size: tuple[int, int], region: np.ndarray | None, fps: float
                   ) -> FrameSequence:
-    files = sorted(p for p in path.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
-    if not files:
-        raise InputError(f"{path}: no images ({', '.join(sorted(IMAGE_SUFFIXES))}) in folder")
+    files = image_files(path)
 
     def load(index: int) -> np.ndarray:
         image = cv2.imread(str(files[index]), cv2.IMREAD_UNCHANGED)

@@ -225,13 +225,15 @@ def test_depth_on_a_video_takes_its_frame_rate_or_the_one_given(tmp_path, tiny_c
     assert len(list((out / "depth").iterdir())) == 3
 
 
-@pytest.mark.parametrize("command", ["depth", "train-depth"])
-def test_a_frame_rate_that_is_not_positive_is_refused(tmp_path, tiny_checkpoint, command):
+@pytest.mark.parametrize("command, fps", [("depth", "0"), ("train-depth", "0"),
+                                          ("depth", "inf")])
+def test_a_frame_rate_that_is_not_a_positive_number_is_refused(tmp_path, tiny_checkpoint,
+                                                               command, fps):
     folder = write_images(tmp_path / "frames", [disc_frame(seed=s) for s in range(3)])
     args = [str(folder), "--checkpoint", str(tiny_checkpoint)] if command == "depth" else \
         ["--data", str(folder), "--steps", "1"]
-    result = runner.invoke(app, [command, *args, "--out", str(tmp_path / "out"), "--fps", "0"])
-    assert_clean_error(result, "--fps must be positive")
+    result = runner.invoke(app, [command, *args, "--out", str(tmp_path / "out"), "--fps", fps])
+    assert_clean_error(result, "--fps must be a positive number")
     assert not (tmp_path / "out" / "checkpoint.safetensors").exists()
 
 

@@ -418,6 +418,10 @@ def test_coral_transform_matches_mean_and_covariance():
     assert np.abs(np.cov(moved, rowvar=False) - cov).max() < tolerance
     # Before adaptation the statistics were far apart.
     assert np.abs(np.cov(target, rowvar=False) - cov).max() > 100 * tolerance
+    # As many rows as dimensions span at most d - 1 of them: the gain would blow up.
+    coral_transform(mean, cov, target[:d + 1])
+    with pytest.raises(InputError, match="more target embeddings than their 6 dimensions"):
+        coral_transform(mean, cov, target[:d])
 
 
 def test_adapt_makes_target_features_look_like_the_source():
@@ -782,6 +786,18 @@ def test_per_frame_samples_of_a_procedure_at_every_kth_frame(two_procedures, spa
     with pytest.raises(InputError, match=r"6 fps; .*divides the travel gap of 8"):
         procedure_samples(sparse_procedures / "step5" / "proc_0000", config, depth_model,
                           "tiny", frames_only=True)
+
+
+def test_one_colon_twice_in_the_training_data_is_refused(two_procedures, sparse_procedures):
+    """Within --data too: the same colon at another frame step (or style) could fall on both
+    sides of a fold, and so could a procedure given twice."""
+    from learned.coverage_train import check_no_shared_colon
+
+    check_no_shared_colon([two_procedures], [sparse_procedures / "step4"])  # other colons
+    same = sparse_procedures / "same-colon" / "proc_0000"
+    for data in ([two_procedures, same], [two_procedures, two_procedures / "proc_0001"]):
+        with pytest.raises(InputError, match="has the colon of .* give each procedure once"):
+            check_no_shared_colon(data, [])
 
 
 def test_train_coverage_with_per_frame_procedures(tmp_path, two_procedures, sparse_procedures):

@@ -526,6 +526,29 @@ def test_cli_refuses_a_work_folder_of_another_video(pipeline_run, frames, tmp_pa
     assert snapshot(work) == kept
 
 
+def test_cli_refuses_a_work_folder_made_with_another_image_region(pipeline_run, procedure,
+                                                                    tmp_path):
+    """A run whose region was detected is not resumed with a --mask, nor the reverse; a folder
+    made before the region was recorded counts as detected."""
+    out, _ = pipeline_run
+    work = tmp_path / "work"
+    shutil.copytree(out, work)
+    config = json.loads((work / W.CONFIG).read_text())
+    assert config.pop("region") is None
+    (work / W.CONFIG).write_text(json.dumps(config))  # as made before the region was kept
+    resumed = runner.invoke(app, ["run", str(procedure.path), "--out", str(work)])
+    assert resumed.exit_code == 0, resumed.output  # every stage done, nothing refused
+    kept = snapshot(work)
+    mask = tmp_path / "mask.png"
+    full = np.full((procedure.camera.height, procedure.camera.width), 255, np.uint8)
+    cv2.imwrite(str(mask), full)
+    result = runner.invoke(app, ["run", str(procedure.path), "--out", str(work),
+                                 "--mask", str(mask)])
+    message = assert_input_error(result, str(work))
+    assert "image region was detected from the frames, not given by a mask" in message
+    assert snapshot(work) == kept
+
+
 def test_cli_refuses_a_work_folder_of_a_procedure_simulated_again(pipeline_run, procedure,
                                                                    tmp_path):
     """Same path, other content: a procedure simulated again in place is another video."""
@@ -562,6 +585,47 @@ def test_an_image_folder_is_identified_by_its_images(tmp_path):
     cv2.imwrite(str(folder / "1.png"), np.random.default_rng(0).integers(0, 255, (8, 8, 3),
                                                                           dtype=np.uint8))
     assert _source_identity(folder) != before
+
+
+def test_an_image_folder_is_read_in_frame_order(tmp_path):
+    """Frames named without leading zeros (ffmpeg's %d.png) come in numeric order, in the
+    run's ingest and in the depth commands' sequences alike."""
+    from hybrid.ingest import ingest
+    from learned.frames import image_files, open_sequence
+
+    folder = tmp_path / "frames"
+    folder.mkdir()
+    for k in (1, 2, 10, 11, 3):  # written out of order, and "10" < "2" as text
+        image = np.zeros((32, 40, 3), np.uint8)
+        image[4:28, 4:36] = 20 * k  # a bright image region on a black border
+        cv2.imwrite(str(folder / f"{k}.png"), image)
+    assert [p.name for p in image_files(folder)] == ["1.png", "2.png", "3.png", "10.png",
+                                                     "11.png"]
+    _, region = ingest(folder, (16, 20), tmp_path / "frames.npy")
+    levels = np.load(tmp_path / "frames.npy")[:, region].mean(axis=(1, 2))
+    np.testing.assert_allclose(levels, [20, 40, 60, 200, 220], atol=1)
+    seq = open_sequence(folder, (16, 20))
+    assert [int(seq.frame(i)[8, 10, 0]) for i in range(5)] == [20, 40, 60, 200, 220]
+
+
+@pytest.mark.parametrize("shape", [(540, 720), (1080, 1350)])
+def test_a_flat_image_inside_a_circular_border_reads_as_blurred(shape, tmp_path):
+    """The blur flag reads the image, not the step to the black border: flat frames inside
+    a circle of HD video are blurred (featureless), textured ones are not."""
+    from hybrid.ingest import ingest
+
+    folder = tmp_path / "frames"
+    folder.mkdir()
+    v, u = np.mgrid[:shape[0], :shape[1]]
+    disc = np.hypot(u - shape[1] / 2, v - shape[0] / 2) < 0.45 * shape[0]
+    rng = np.random.default_rng(0)
+    for k in range(4):
+        wall = np.full(shape, 128, np.uint8) if k < 2 else cv2.resize(
+            rng.integers(60, 200, (shape[0] // 8, shape[1] // 8), dtype=np.uint8),
+            shape[::-1], interpolation=cv2.INTER_CUBIC)
+        cv2.imwrite(str(folder / f"{k}.png"), np.repeat((wall * disc)[..., None], 3, axis=2))
+    record, _ = ingest(folder, (128, 160), tmp_path / "frames.npy")
+    assert record.blurred == [True, True, False, False]
 
 
 def read_summary(out: Path) -> dict[str, dict]:
