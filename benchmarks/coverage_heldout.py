@@ -120,6 +120,7 @@ def main() -> None:
         tic = time.time()
         model = fit_model(train, fit_config, lambda entry: None, progress=True,
                           frame_samples=frames)
+        model.depth_tag = record["depth_checkpoint"]["sha256_12"]
         model.save(args.out)
         sidecar.write_text(json.dumps({"procedures": names}, indent=1) + "\n")
         alone = (f" and {len(frames)} for the per-frame network alone "

@@ -46,7 +46,8 @@ ViewSelfCalibrate = Annotated[bool, typer.Option(
 PipelineDepth = Annotated[Path | None, typer.Option(help="Depth model (default: shipped).")]
 PipelineCoverage = Annotated[Path | None, typer.Option(
     help="Coverage model, e.g. one adapted with `c2d2 adapt` (default: shipped); it must read "
-    "the depth model's output.")]
+    "the depth model's output (networks trained since 2026-11-30 record which depth model "
+    "they learned on, and refuse another's).")]
 
 app = typer.Typer(help="C2D2: detect deficient coverage in colonoscopy video.",
                   no_args_is_help=True, add_completion=False, pretty_exceptions_enable=False)
@@ -608,8 +609,9 @@ def eval_coverage(
         raise InputError(f"--view-hidden: {model_path} was not trained with field_of_view "
                          f"'true' and view_hidden, so it does not run with its field of view "
                          f"hidden")
-    samples = load_samples(data, net.config, depth_checkpoint or _shipped_checkpoint(),
-                           progress=True, device=device)
+    depth_checkpoint = depth_checkpoint or _shipped_checkpoint()
+    net.check_depth(depth_checkpoint, str(model_path))
+    samples = load_samples(data, net.config, depth_checkpoint, progress=True, device=device)
     if view_hidden:
         samples = [replace(s, view=hidden_view(len(s.view))) for s in samples]
     predictions = evaluate(net, samples)

@@ -141,6 +141,7 @@ class Models:
                              f"(field_of_view {coverage_model.config.field_of_view!r}); use "
                              f"networks trained with field_of_view 'true' and view_hidden, or "
                              f"run without self-calibration")
+        coverage_model.check_depth(depth, str(coverage))
         return cls(load_depth_model(depth, device=device), coverage_model,
                    {"depth": file_tag(depth), "coverage": file_tag(coverage)})
 

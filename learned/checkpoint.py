@@ -21,12 +21,13 @@ from hybrid.types import InputError
 
 def save_checkpoint(path: Path, modules: dict[str, torch.nn.Module], config: dict,
                     step: int, optimizer: torch.optim.Optimizer | None = None,
-                    kind: str = "depth") -> None:
-    """Write modules' weights (and the optimiser's state) to path atomically."""
+                    kind: str = "depth", extra: dict[str, str] | None = None) -> None:
+    """Write modules' weights (and the optimiser's state) to path atomically; `extra`
+    entries join the metadata."""
     tensors = {f"{name}.{k}": v.detach().cpu().contiguous()
                for name, module in modules.items() for k, v in module.state_dict().items()}
     meta = {"kind": kind, "config": json.dumps(config), "step": str(step),
-            "c2d2_version": __version__}
+            "c2d2_version": __version__, **(extra or {})}
     if optimizer is not None:
         state = optimizer.state_dict()
         for index, values in state["state"].items():
@@ -55,6 +56,12 @@ def read_checkpoint(path: Path, kind: str = "depth") -> tuple[dict[str, torch.Te
     meta["config"] = json.loads(meta["config"])
     meta["step"] = int(meta["step"])
     return tensors, meta
+
+
+def checkpoint_metadata(path: Path) -> dict[str, str]:
+    """A checkpoint's metadata as stored (its header only; read_checkpoint checks the file)."""
+    with safe_open(str(path), "pt") as handle:
+        return dict(handle.metadata() or {})
 
 
 def load_modules(tensors: dict[str, torch.Tensor], modules: dict[str, torch.nn.Module],

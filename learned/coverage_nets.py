@@ -32,7 +32,7 @@ from torch import nn
 from hybrid.coverage import DELTA_PAIRS_CM
 from hybrid.types import InputError
 from learned.calibration import apply_table, identity_table
-from learned.checkpoint import load_model, save_checkpoint
+from learned.checkpoint import checkpoint_metadata, file_tag, load_model, save_checkpoint
 from learned.config import CoverageConfig
 from learned.device import device_of
 from learned.nets import ResNetEncoder
@@ -211,6 +211,17 @@ class CoverageModel(nn.Module):
         self.config = config
         self.frame = FrameNet(config)
         self.segment = SegmentNet(config)
+        self.depth_tag: str | None = None
+        """SHA-256 prefix of the depth checkpoint whose output the per-frame network learned
+        from (None in checkpoints made before it was recorded)."""
+
+    def check_depth(self, depth_checkpoint: Path, name: str) -> None:
+        """Refuse depth maps from another depth model than the one these networks learned on."""
+        if self.depth_tag is not None and self.depth_tag != file_tag(depth_checkpoint):
+            raise InputError(f"{name}: these coverage networks learned on the output of the "
+                             f"depth model {self.depth_tag} (SHA-256 prefix), not of "
+                             f"{depth_checkpoint} ({file_tag(depth_checkpoint)}); give that "
+                             f"depth model, or coverage networks trained on this one")
 
     @torch.no_grad()
     def frame_outputs(self, inputs: np.ndarray, cues: np.ndarray, batch: int = 32
@@ -284,10 +295,13 @@ class CoverageModel(nn.Module):
 
     def save(self, path: Path, step: int = 0) -> None:
         save_checkpoint(path, {"frame": self.frame, "segment": self.segment},
-                        self.config.to_dict(), step, kind="coverage")
+                        self.config.to_dict(), step, kind="coverage",
+                        extra=None if self.depth_tag is None else {"depth_model": self.depth_tag})
 
 
 def load_coverage_model(path: Path, preset: str | None = None,
                         device: torch.device | str = "cpu") -> CoverageModel:
     """A trained coverage model in eval mode on `device`; checks its preset if one is given."""
-    return load_model(path, "coverage", CoverageConfig, CoverageModel, preset).to(device)
+    model = load_model(path, "coverage", CoverageConfig, CoverageModel, preset).to(device)
+    model.depth_tag = checkpoint_metadata(path).get("depth_model")
+    return model

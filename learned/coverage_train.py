@@ -373,6 +373,7 @@ def train_coverage(data: list[Path], out: Path, config: CoverageConfig,
             tic = time.time()
             model = fit_model(train, config, lambda e, k=k: log(e, str(k)), progress, device,
                               frame_samples)
+            model.depth_tag = record["depth_checkpoint"]["sha256_12"]
             model.save(path)
             record["seconds"][f"fold_{k}"] = round(time.time() - tic, 1)
         folds.append(fold_predictions(model, [samples[i] for i in held], progress))
@@ -405,6 +406,7 @@ def train_coverage(data: list[Path], out: Path, config: CoverageConfig,
         model = fit_model(samples, config, log, progress, device, frame_samples)
         record["seconds"]["final"] = round(time.time() - tic, 1)
     model.segment.calibration.copy_(torch.from_numpy(table))
+    model.depth_tag = record["depth_checkpoint"]["sha256_12"]
     model.save(final)
     record["seconds"]["total_this_call"] = round(time.time() - started, 1)
     record_path.write_text(json.dumps(record, indent=1) + "\n")

@@ -843,6 +843,24 @@ def test_train_coverage_with_per_frame_procedures(tmp_path, two_procedures, spar
     assert result.exit_code != 0 and "Traceback" not in result.output, result.output
     error = result.stderr[result.stderr.index("error: "):]  # after the progress bar
     assert f"{tmp_path / 'frames'} holds a run on other procedures" in error, error
+    # The networks know the depth model they learned on, and refuse another's depth maps.
+    from learned.checkpoint import checkpoint_metadata, file_tag
+    from learned.checkpoints import SHIPPED_DEPTH
+
+    final = tmp_path / "frames" / "model.safetensors"
+    assert checkpoint_metadata(final)["depth_model"] == file_tag(depth)
+    assert checkpoint_metadata(tmp_path / "frames" / "fold-0.safetensors")["depth_model"] == \
+        file_tag(depth)
+    result = runner.invoke(app, ["eval-coverage", "--data", str(two_procedures), "--model",
+                                 str(final), "--out", str(tmp_path / "eval")])
+    assert_clean_error(result, str(final), str(SHIPPED_DEPTH), file_tag(depth))
+    assert not (tmp_path / "eval").exists()
+    from hybrid.pipeline import Models, RunConfig  # c2d2 run, batch, eval and adapt load so
+
+    with pytest.raises(InputError, match=f"learned on the output of the depth model "
+                                         f"{file_tag(depth)}"):
+        Models.load(RunConfig(coverage_checkpoint=str(final)))
+    Models.load(RunConfig(depth_checkpoint=str(depth), coverage_checkpoint=str(final)))
 
 
 def test_eval_coverage_with_a_depth_checkpoint_as_model(tmp_path, two_procedures):
