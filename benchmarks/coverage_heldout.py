@@ -92,9 +92,8 @@ def main() -> None:
         raise SystemExit(f"error: --data holds procedures of {args.run} or --train: {clash}")
     # the fold model's per-frame procedures belong to its training data
     run_frames = [Path(p) for p in record.get("frame_data", [])] if args.plus_fold_training else []
-    if run_frames or args.frame_train:
-        check_no_shared_colon([Path(p) for p in record["data"]] + paths + args.data,
-                              run_frames + args.frame_train)
+    check_no_shared_colon([Path(p) for p in record["data"]] + paths + args.data,
+                          run_frames + args.frame_train)
     frame_paths = expand_inputs(run_frames + args.frame_train)
     names += [f"frames only: {input_name(p)}" for p in frame_paths] + [f"--set {item}"
                                                                         for item in args.set]

@@ -115,9 +115,10 @@ def ingest(path: Path, size: tuple[int, int], frames_out: Path, region: np.ndarr
         return cv2.resize(cut, (width, height), interpolation=interpolation)
 
     small_region = fit(region.astype(np.uint8), cv2.INTER_NEAREST).astype(bool)
-    # The Laplacian at the region's edge reads the step to the black border: keep it out.
-    sharpness_region = cv2.erode(small_region.astype(np.uint8), np.ones((5, 5), np.uint8)
-                                 ).astype(bool)
+    # The Laplacian at the region's edge reads the step to the black border, also where the
+    # region meets the frame's edge: keep it out.
+    sharpness_region = cv2.erode(small_region.astype(np.uint8), np.ones((5, 5), np.uint8),
+                                 borderType=cv2.BORDER_CONSTANT, borderValue=0).astype(bool)
     stack = NpyWriter(frames_out, (count, height, width, 3), np.uint8)
     dark, bright, blurred = [], [], []
     for index, frame in enumerate(tqdm(source.open(), total=count, unit="frame",

@@ -107,7 +107,8 @@ class RunConfig:
     def __post_init__(self) -> None:
         check_fps(self.fps)
         if not 0 < self.segment_seconds < math.inf:
-            raise InputError(f"segments must last a positive time, got {self.segment_seconds}")
+            raise InputError(f"segments must last a positive, finite time, got "
+                             f"{self.segment_seconds}")
         if not (math.isfinite(self.geometric_weight) and self.geometric_weight >= 0):
             raise InputError(f"the geometric coverage's weight must be a finite number, 0 or "
                              f"more, got {self.geometric_weight}")
@@ -586,8 +587,9 @@ def _prepare(out: Path, config: RunConfig, source: Path, models: Models,
             raise InputError(f"{out} holds a run of {before}, not of {source}; use another "
                              f"--out")
         if previous["source"] != identity:
-            why = "it has changed since" if "content" in previous["source"] or \
-                "content" not in identity else "the run is by an earlier c2d2"
+            why = ("it, or the order in which c2d2 reads an image folder, has changed since"
+                   if "content" in previous["source"] or "content" not in identity else
+                   "the run is by an earlier c2d2")
             raise InputError(f"{out} holds a run of {source} as it was before ({why}); use "
                              f"another --out or delete it to start again")
         if previous.get("region") != resolved["region"]:  # runs before it was kept: detected
@@ -595,8 +597,9 @@ def _prepare(out: Path, config: RunConfig, source: Path, models: Models,
                 return ("detected from the frames" if tag is None else
                         f"given by a mask (SHA-256 prefix {tag})")
 
-            raise InputError(f"{out} holds a run whose image region was "
-                             f"{told(previous.get('region'))}, not "
+            before = (told(previous["region"]) if "region" in previous else
+                      "not recorded (a run by an earlier c2d2, taken as detected)")
+            raise InputError(f"{out} holds a run whose image region was {before}, not "
                              f"{told(resolved['region'])}; use another --out or delete it to "
                              f"start again")
         before_config = made_with(previous.get("config") or {})

@@ -3,9 +3,10 @@
 The pooled layer z of the per-segment network (its second-to-last layer) is mapped by
 z -> A (z - μt) + μs with A = Cs^(1/2) Ct^(-1/2), so that on the target domain (unlabelled
 video) its mean and covariance become the synthetic training windows' μs and Cs. Both
-covariances get a small ridge (1e-5 of their mean variance) so that A exists when the target
-has fewer windows than dimensions. The source statistics can be taken from held-out
-synthetic videos instead of the training windows (`set_source`).
+covariances get a small ridge (1e-5 of their mean variance), and each needs more samples (a
+window in each of its mirror views) than z has dimensions, without which its covariance is
+singular and A would blow up the directions it lacks. The source statistics can be taken
+from held-out synthetic videos instead of the training windows (`set_source`).
 """
 
 from __future__ import annotations
@@ -38,7 +39,7 @@ def coral_transform(source_mean: np.ndarray, source_cov: np.ndarray, target: np.
         raise InputError(f"target embeddings must be (n, {len(source_mean)}), got "
                          f"{target.shape}")
     if len(target) <= target.shape[1]:  # fewer rows leave the target covariance singular
-        raise InputError(f"CORAL needs more target embeddings than their {target.shape[1]} "
+        raise InputError(f"CORAL needs more target samples than their {target.shape[1]} "
                          f"dimensions, got {len(target)}; give more or longer unlabelled "
                          f"videos")
     if not np.isfinite(target).all():
@@ -51,7 +52,7 @@ def coral_transform(source_mean: np.ndarray, source_cov: np.ndarray, target: np.
 def window_embeddings(model: CoverageModel, features: list[np.ndarray], stride: int,
                       role: str = "target") -> np.ndarray:
     """The pooled layer (n, len(MIRRORS), C) of the n windows every `stride` frames of each
-    video's features, in each mirror view; at least 2 windows."""
+    video's features, in each mirror view; more samples than C (see the module)."""
     T = model.config.segment_frames
     starts = [list(range(0, len(f) - T + 1, stride)) for f in features]
     if not any(starts):
@@ -60,9 +61,11 @@ def window_embeddings(model: CoverageModel, features: list[np.ndarray], stride: 
                          f"the longest has {longest}")
     embedded = np.concatenate([model.segment_embeddings(f, ss).double().cpu().numpy()
                                for f, ss in zip(features, starts, strict=True) if ss])
-    if len(embedded) < 2:
-        raise InputError(f"CORAL needs at least 2 {role} segments, got {len(embedded)}; give "
-                         f"more or longer videos")
+    windows, views, dims = embedded.shape
+    if windows * views <= dims:
+        raise InputError(f"CORAL needs at least {dims // views + 1} {role} windows (each in its "
+                         f"{views} mirror views, more samples than the {dims} dimensions it "
+                         f"aligns), got {windows}; give more or longer videos")
     return embedded
 
 

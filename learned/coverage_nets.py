@@ -217,6 +217,8 @@ class CoverageModel(nn.Module):
 
     def check_depth(self, depth_checkpoint: Path, name: str) -> None:
         """Refuse depth maps from another depth model than the one these networks learned on."""
+        if not Path(depth_checkpoint).is_file():
+            raise InputError(f"checkpoint not found: {depth_checkpoint}")
         if self.depth_tag is not None and self.depth_tag != file_tag(depth_checkpoint):
             raise InputError(f"{name}: these coverage networks learned on the output of the "
                              f"depth model {self.depth_tag} (SHA-256 prefix), not of "

@@ -20,7 +20,7 @@ from hybrid.dataset import Procedure
 from hybrid.pipeline import Models, RunConfig
 from hybrid.types import InputError
 from learned.calibration import fit_table, identity_table
-from learned.checkpoint import save_checkpoint
+from learned.checkpoint import file_tag, save_checkpoint
 from learned.config import COVERAGE_PRESETS, CoverageConfig, coverage_config, parse_overrides
 from learned.coral import adapt, coral_transform, set_source
 from learned.coverage_data import procedure_samples
@@ -420,7 +420,7 @@ def test_coral_transform_matches_mean_and_covariance():
     assert np.abs(np.cov(target, rowvar=False) - cov).max() > 100 * tolerance
     # As many rows as dimensions span at most d - 1 of them: the gain would blow up.
     coral_transform(mean, cov, target[:d + 1])
-    with pytest.raises(InputError, match="more target embeddings than their 6 dimensions"):
+    with pytest.raises(InputError, match="more target samples than their 6 dimensions"):
         coral_transform(mean, cov, target[:d])
 
 
@@ -453,10 +453,17 @@ def test_adapt_makes_target_features_look_like_the_source():
     assert (torch.cov(moved.T) - net.source_cov.double()).abs().max() < 1e-3 * scale
 
 
-def test_adapt_needs_a_video_of_one_segment():
+def test_adapt_needs_a_video_of_one_segment_and_more_samples_than_dimensions():
     model = CoverageModel(SMALL)
     with pytest.raises(InputError, match="at least 20 frames"):
         adapt(model, [np.zeros((19, 4, SMALL.feature_size), np.float32)], stride=5)
+    dims = SMALL.segment_channels[-1]  # the pooled layer CORAL aligns
+    enough = dims // len(MIRRORS) + 1
+    rng = np.random.default_rng(0)
+    video = rng.normal(size=(20 + 5 * (enough - 1), 4, SMALL.feature_size)).astype(np.float32)
+    assert adapt(model, [video], stride=5) == enough
+    with pytest.raises(InputError, match=f"at least {enough} target windows .* got {enough - 1}"):
+        adapt(model, [video[:-5]], stride=5)
 
 
 # --- bad input ----------------------------------------------------------------------------
@@ -648,6 +655,7 @@ def test_train_eval_and_adapt_commands(tmp_path, two_procedures):
                                  "--segment-seconds", str(20 / 30)])  # 20 frames at 30 fps
     assert result.exit_code == 0, result.output
     assert "CORAL fitted on 10 target windows" in result.output  # 2 x (40 - 20) / 5 + 2
+    assert load_coverage_model(adapted).depth_tag == file_tag(depth)  # kept for its users
     net = load_coverage_model(adapted).segment
     assert not torch.allclose(net.coral_matrix, torch.eye(len(net.coral_matrix)))
     trained_source = net.source_mean.clone()
@@ -844,7 +852,7 @@ def test_train_coverage_with_per_frame_procedures(tmp_path, two_procedures, spar
     error = result.stderr[result.stderr.index("error: "):]  # after the progress bar
     assert f"{tmp_path / 'frames'} holds a run on other procedures" in error, error
     # The networks know the depth model they learned on, and refuse another's depth maps.
-    from learned.checkpoint import checkpoint_metadata, file_tag
+    from learned.checkpoint import checkpoint_metadata
     from learned.checkpoints import SHIPPED_DEPTH
 
     final = tmp_path / "frames" / "model.safetensors"

@@ -545,8 +545,14 @@ def test_cli_refuses_a_work_folder_made_with_another_image_region(pipeline_run, 
     result = runner.invoke(app, ["run", str(procedure.path), "--out", str(work),
                                  "--mask", str(mask)])
     message = assert_input_error(result, str(work))
-    assert "image region was detected from the frames, not given by a mask" in message
+    assert "image region was not recorded (a run by an earlier c2d2, taken as detected), not " \
+        "given by a mask" in message
     assert snapshot(work) == kept
+    (work / W.CONFIG).write_text(json.dumps({**config, "region": None}))  # as made today
+    result = runner.invoke(app, ["run", str(procedure.path), "--out", str(work),
+                                 "--mask", str(mask)])
+    assert "image region was detected from the frames, not given by a mask (SHA-256 prefix " \
+        in assert_input_error(result, str(work))
 
 
 def test_cli_refuses_a_work_folder_of_a_procedure_simulated_again(pipeline_run, procedure,
@@ -609,9 +615,11 @@ def test_an_image_folder_is_read_in_frame_order(tmp_path):
 
 
 @pytest.mark.parametrize("shape", [(540, 720), (1080, 1350)])
-def test_a_flat_image_inside_a_circular_border_reads_as_blurred(shape, tmp_path):
-    """The blur flag reads the image, not the step to the black border: flat frames inside
-    a circle of HD video are blurred (featureless), textured ones are not."""
+@pytest.mark.parametrize("given", [False, True])
+def test_a_flat_image_inside_a_circular_border_reads_as_blurred(shape, given, tmp_path):
+    """The blur flag reads the image, not the step to the black border (nor where the region
+    meets the frame's edge, as a given disc does): flat frames inside a circle of HD video
+    are blurred (featureless), even bright ones; textured ones are not."""
     from hybrid.ingest import ingest
 
     folder = tmp_path / "frames"
@@ -619,12 +627,12 @@ def test_a_flat_image_inside_a_circular_border_reads_as_blurred(shape, tmp_path)
     v, u = np.mgrid[:shape[0], :shape[1]]
     disc = np.hypot(u - shape[1] / 2, v - shape[0] / 2) < 0.45 * shape[0]
     rng = np.random.default_rng(0)
-    for k in range(4):
-        wall = np.full(shape, 128, np.uint8) if k < 2 else cv2.resize(
+    for k, level in enumerate((128, 240, None, None)):
+        wall = np.full(shape, level, np.uint8) if level else cv2.resize(
             rng.integers(60, 200, (shape[0] // 8, shape[1] // 8), dtype=np.uint8),
             shape[::-1], interpolation=cv2.INTER_CUBIC)
         cv2.imwrite(str(folder / f"{k}.png"), np.repeat((wall * disc)[..., None], 3, axis=2))
-    record, _ = ingest(folder, (128, 160), tmp_path / "frames.npy")
+    record, _ = ingest(folder, (128, 160), tmp_path / "frames.npy", disc if given else None)
     assert record.blurred == [True, True, False, False]
 
 
@@ -800,6 +808,13 @@ def hand_made_work_dir(out: Path, geometric: list[float | None] | None) -> Inges
         flags[t] = True  # segment 3: 4 of 10 usable, one flag per frame
     over[41] = blur[41] = True  # segment 4: 9 of 10 usable
     return Ingested("hand.avi", 25.0, 50, 160, 128, {}, dark, over, blur)
+
+
+@pytest.mark.parametrize("fields", [dict(segment_seconds=0), dict(segment_seconds=float("inf")),
+                                    dict(fps=float("inf"))])
+def test_a_segment_length_or_frame_rate_that_is_not_a_positive_number_is_refused(fields):
+    with pytest.raises(InputError, match="positive"):
+        RunConfig(**fields)
 
 
 def test_combined_coverage_weighs_the_geometric_value_by_its_weight_and_support():
