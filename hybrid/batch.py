@@ -1,7 +1,8 @@
 """Batch runs: every video in a folder, each in its own work directory, failures isolated.
 
 Writes out/<video name>/ per video (see hybrid.pipeline), out/<video name>/error.txt when a
-video fails, and out/summary.csv (one row per video, rewritten atomically after each video).
+video fails, and out/summary.csv (one row per video, rewritten atomically after each video;
+a rerun starts from the rows an earlier one left, so videos it has not reached yet keep theirs).
 A video whose report exists is skipped; an interrupted one resumes at its first missing stage.
 """
 
@@ -53,7 +54,7 @@ def run_batch(folder: Path, out: Path, config: RunConfig | None = None, workers:
     models = Models.load(config, device if workers == 1 else "cpu")
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    rows: dict[str, dict] = {}
+    rows = _earlier_rows(out, videos)
     bar = tqdm(total=len(videos), desc="videos", unit="video", disable=not progress)
     if workers == 1:
         for video in videos:
@@ -128,6 +129,18 @@ def _summarise(work: Path) -> dict:
             "agreement": "" if table["agreement"] is None else round(table["agreement"], 4),
             "deficient_segments": sum(s["deficient"] for s in segments),
             "not_assessable": sum(not s["assessable"] for s in segments)}
+
+
+def _earlier_rows(out: Path, videos: list[Path]) -> dict[str, dict]:
+    """The rows an earlier batch into `out` left for these videos, so that a rerun stopped
+    before it reaches them does not list them as pending."""
+    path = out / SUMMARY
+    if not path.is_file():
+        return {}
+    names = {str(video): video.name for video in videos}
+    with path.open(newline="") as f:
+        return {names[row["video"]]: row for row in csv.DictReader(f)
+                if row["video"] in names and row["status"] != "pending"}
 
 
 def _write_summary(out: Path, videos: list[Path], rows: dict[str, dict]) -> None:

@@ -664,7 +664,7 @@ def test_batch_with_two_workers_gives_what_one_gives(frames, tmp_path):
         assert two["mean_geometric"] == one["mean_geometric"]
 
 
-def test_batch_resumes_after_a_kill_and_isolates_a_bad_file(frames, tmp_path):
+def test_batch_resumes_after_a_kill_and_isolates_a_bad_file(frames, tmp_path, monkeypatch):
     videos = tmp_path / "videos"
     videos.mkdir()
     write_video(videos / "a_first.avi", frames[:110], FPS)  # 11 s: one segment each
@@ -703,6 +703,21 @@ def test_batch_resumes_after_a_kill_and_isolates_a_bad_file(frames, tmp_path):
             k: v for k, v in rows[name].items() if k != "status"}
     assert again["c_notes.mp4"]["error"] == rows["c_notes.mp4"]["error"]
     assert error_file.is_file()
+
+    # A rerun stopped after its first video lists the others as they were, not as pending.
+    import hybrid.batch
+
+    def stopped(video: Path, *args, **kwargs) -> dict:
+        if video.name == "b_second.avi":
+            raise KeyboardInterrupt
+        return run_video(video, *args, **kwargs)
+
+    monkeypatch.setattr(hybrid.batch, "run_video", stopped)
+    with pytest.raises(KeyboardInterrupt):
+        hybrid.batch.run_batch(videos, out, progress=False)
+    third = read_summary(out)
+    assert [third[v]["status"] for v in sorted(third)] == ["done before", "done", "failed"]
+    assert third["b_second.avi"] == again["b_second.avi"]
 
 
 # --- bad input to `c2d2 run` -----------------------------------------------------------------
