@@ -2,13 +2,13 @@
 stretches that `c2d2 eval-depth --self-calibrate --out JSON` recorded (no mapping is rerun).
 
 First, per style, the stretches as recorded: how many were mapped, how many of those lie
-more than the recorded `agreement` from the true fx (and how many of these had every frame
-placed), and how many procedures mapped any stretch (and their first one). Then, per style and
-over all procedures: how many reached a consensus, the fx error of the self-calibrated K on
-those and of the intrinsics head on the same procedures, and the fx error of what a user gets
-(the self-calibrated K where there is one, else the head's). Each combination of
---agreement, --min-agreeing and --min-field-of-view is applied to the same recorded
-stretches; what is not given stays each record's own rule (column fov: "own").
+more than the recorded `agreement` from the true fx (and how many of these read too long, and
+how many had every frame placed), and how many procedures mapped any stretch (and their first
+one). Then, per style and over all procedures: how many reached a consensus, the fx error of
+the self-calibrated K on those and of the intrinsics head on the same procedures, and the fx
+error of what a user gets (the self-calibrated K where there is one, else the head's). Each
+combination of --agreement, --min-agreeing and --min-field-of-view is applied to the same
+recorded stretches; what is not given stays each record's own rule (column fov: "own").
 
     .venv/bin/python benchmarks/self_calibration_rules.py --eval EVAL.json [EVAL2.json ...] \\
         --agreement 0.1 0.15 0.2 --min-agreeing 1 2 3 [--min-field-of-view 0 60]
@@ -34,17 +34,19 @@ def percent(values: list[float]) -> str:
 
 def print_stretches(found: dict[str, SelfCalibration], fx_true: dict[str, float],
                     styles: dict[str, str]) -> None:
-    """Per style: mapped stretches, those far from the true fx, procedures that mapped any."""
+    """Per style: mapped stretches, those far from the true fx (and how many of those read
+    long), procedures that mapped any."""
     for style in sorted(set(styles.values())):
         names = [n for n in found if styles[n] == style]
         mapped = [(s, fx_true[n]) for n in names for s in found[n].mapped]
-        far = [s for s, true in mapped
+        far = [(s, true) for s, true in mapped
                if abs(s.fx / true - 1) > found[names[0]].config.agreement]
         any_mapped = [n for n in names if found[n].mapped]
         first = [n for n in any_mapped if found[n].mapped[0].start == 0]
         print(f"{style}: {len(mapped)} stretches mapped, {len(far)} of them more than "
               f"{found[names[0]].config.agreement:.0%} off the true fx "
-              f"({sum(s.registered == 1 for s in far)} with every frame placed); "
+              f"({sum(s.fx > true for s, true in far)} too long; "
+              f"{sum(s.registered == 1 for s, _ in far)} with every frame placed); "
               f"{len(any_mapped)} of {len(names)} procedures mapped a stretch, "
               f"{len(first)} of them their first")
 

@@ -131,12 +131,16 @@ class SelfCalibration:
     """fy / fx of the frames (the mapper's fx scaled by the frames' pixel aspect)."""
 
     @property
-    def mapped(self) -> list[Stretch]:
-        """Stretches with at least `min_registered` of their frames placed, whose fx gives a
-        field of view of at least `min_field_of_view`."""
+    def placed(self) -> list[Stretch]:
+        """Stretches that built a model placing at least `min_registered` of their frames."""
         return [s for s in self.stretches
-                if s.fx is not None and s.registered >= self.config.min_registered
-                and self.field_of_view(s) >= self.config.min_field_of_view]
+                if s.fx is not None and s.registered >= self.config.min_registered]
+
+    @property
+    def mapped(self) -> list[Stretch]:
+        """Placed stretches whose fx gives a field of view of at least `min_field_of_view`."""
+        return [s for s in self.placed
+                if self.field_of_view(s) >= self.config.min_field_of_view]
 
     def field_of_view(self, stretch: Stretch) -> float:
         """Field of view (degrees) of a stretch's fx (one that built a model), the wider of
@@ -178,9 +182,8 @@ class SelfCalibration:
         K = self.K
         head = ("no consensus" if K is None else
                 f"fx {K[0, 0]:.1f}, fy {K[1, 1]:.1f} at the network's size")
-        narrow = [s.start for s in self.stretches
-                  if s.fx is not None and s.registered >= self.config.min_registered
-                  and self.field_of_view(s) < self.config.min_field_of_view]
+        mapped = self.mapped
+        narrow = [s.start for s in self.placed if s not in mapped]
         if narrow:
             head += (f"; the stretches from frames {narrow} mapped at a field of view under "
                      f"{self.config.min_field_of_view:g} degrees, too narrow for an endoscope, "

@@ -508,10 +508,11 @@ def _source_identity(source: Path) -> dict:
                 "size": source.stat().st_size if source.is_file() else None}
     if source.is_dir():
         meta = source / "meta.json"
-        listing = "" if meta.is_file() else "\n".join(f"{p.name} {p.stat().st_size}"
-                                                        for p in image_files(source))
-        identity["content"] = file_tag(meta) if meta.is_file() else \
-            hashlib.sha256(listing.encode()).hexdigest()[:12]
+        if meta.is_file():
+            identity["content"] = file_tag(meta)
+        else:
+            listing = "\n".join(f"{p.name} {p.stat().st_size}" for p in image_files(source))
+            identity["content"] = hashlib.sha256(listing.encode()).hexdigest()[:12]
     return identity
 
 

@@ -117,4 +117,6 @@ def export_weights(checkpoint: Path, dest: Path, kind: str = "depth") -> Path:
 
 def file_tag(path: Path) -> str:
     """First 12 hex digits of a file's SHA-256."""
+    if not Path(path).is_file():
+        raise InputError(f"file not found: {path}")
     return hashlib.sha256(Path(path).read_bytes()).hexdigest()[:12]

@@ -217,13 +217,14 @@ class CoverageModel(nn.Module):
 
     def check_depth(self, depth_checkpoint: Path, name: str) -> None:
         """Refuse depth maps from another depth model than the one these networks learned on."""
-        if not Path(depth_checkpoint).is_file():
-            raise InputError(f"checkpoint not found: {depth_checkpoint}")
-        if self.depth_tag is not None and self.depth_tag != file_tag(depth_checkpoint):
+        if self.depth_tag is None:
+            return
+        tag = file_tag(depth_checkpoint)
+        if tag != self.depth_tag:
             raise InputError(f"{name}: these coverage networks learned on the output of the "
                              f"depth model {self.depth_tag} (SHA-256 prefix), not of "
-                             f"{depth_checkpoint} ({file_tag(depth_checkpoint)}); give that "
-                             f"depth model, or coverage networks trained on this one")
+                             f"{depth_checkpoint} ({tag}); give that depth model, or coverage "
+                             f"networks trained on this one")
 
     @torch.no_grad()
     def frame_outputs(self, inputs: np.ndarray, cues: np.ndarray, batch: int = 32

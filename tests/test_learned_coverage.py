@@ -863,6 +863,11 @@ def test_train_coverage_with_per_frame_procedures(tmp_path, two_procedures, spar
                                  str(final), "--out", str(tmp_path / "eval")])
     assert_clean_error(result, str(final), str(SHIPPED_DEPTH), file_tag(depth))
     assert not (tmp_path / "eval").exists()
+    missing = tmp_path / "no-such-depth.safetensors"
+    result = runner.invoke(app, ["eval-coverage", "--data", str(two_procedures), "--model",
+                                 str(final), "--depth-checkpoint", str(missing), "--out",
+                                 str(tmp_path / "eval")])
+    assert_clean_error(result, f"not found: {missing}")
     from hybrid.pipeline import Models, RunConfig  # c2d2 run, batch, eval and adapt load so
 
     with pytest.raises(InputError, match=f"learned on the output of the depth model "
