@@ -1,7 +1,7 @@
 """A calibrated and an uncalibrated coverage model on held-out procedures, segment by segment.
 
 For each group of `--data` folders: the segment MAE of both models, their difference with a
-95% interval (hybrid.evaluate.procedure_interval, paired: both models resampled alike), and
+95% interval (learned.coverage_eval.procedure_interval, paired: both models resampled alike), and
 each model's bias per class of true coverage.
 
     .venv/bin/python benchmarks/calibration_heldout.py --data data/heldout \
@@ -15,8 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from hybrid.evaluate import procedure_interval
-from learned.coverage_eval import bias_per_class
+from learned.coverage_eval import bias_per_class, procedure_interval
 from learned.coverage_nets import load_coverage_model
 from learned.coverage_train import evaluate, load_samples
 

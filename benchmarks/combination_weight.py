@@ -26,8 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from hybrid.crosscheck import combined_coverage
-from hybrid.evaluate import procedure_interval
-from learned.coverage_eval import CLASS_EDGES, three_class
+from learned.coverage_eval import CLASS_EDGES, procedure_interval, three_class
 
 
 def read(path: Path) -> dict[str, np.ndarray]:

@@ -12,8 +12,8 @@ procedures as `c2d2 eval` does (paired: the same procedures are drawn for both);
 `c2d2 eval` files, also the segments whose branches agree in one and not in the other.
 
 Reads the eval.json of `c2d2 eval` (branches learned, geometric and the report's combined
-coverage) or the geometric_eval.json
-of benchmarks/geometric_eval.py (each of its modes).
+coverage), the geometric_eval.json of benchmarks/geometric_eval.py (each of its modes) or the
+metrics.json of `c2d2 eval-coverage` (mode learned).
 
     python benchmarks/eval_spread.py data/eval-sim-w03/eval.json
     python benchmarks/eval_spread.py docs/geometric/thinned/geometric_eval.json
@@ -21,6 +21,8 @@ of benchmarks/geometric_eval.py (each of its modes).
         --versus data/eval-heldout-support-vscale/eval.json geometric geometric
     python benchmarks/eval_spread.py data/eval-heldout-cov72/eval.json \
         --versus data/eval-heldout-s44/eval.json combined combined
+    python benchmarks/eval_spread.py data/runs/coral-nbi72/coral/metrics.json \
+        --versus data/runs/coral-nbi72/no-coral/metrics.json learned learned
 """
 
 from __future__ import annotations
@@ -32,8 +34,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from hybrid.evaluate import procedure_interval
-from learned.coverage_eval import three_class
+from learned.coverage_eval import procedure_interval, three_class
 
 
 class Row(NamedTuple):
@@ -47,9 +48,14 @@ class Row(NamedTuple):
     """The geometric branch's support (c2d2 eval written since it had one), else None."""
 
 
+def pipeline_eval(data: dict) -> bool:
+    """Whether data is c2d2 eval's (a list of segments with both branches)."""
+    return isinstance(data.get("segments"), list)
+
+
 def errors(data: dict) -> dict[str, list[Row]]:
     """Per branch or mode: a row for every segment with a value."""
-    if "segments" in data:  # c2d2 eval
+    if pipeline_eval(data):
         counts: dict[str, int] = {}
         for s in data["segments"]:
             counts[s["procedure"]] = max(counts.get(s["procedure"], 0), s["segment"] + 1)
@@ -66,7 +72,7 @@ def errors(data: dict) -> dict[str, list[Row]]:
                 rows.setdefault(mode, []).extend(
                     Row(name, k, len(truth), p - t)
                     for k, (p, t) in enumerate(zip(result["pred"], truth, strict=True))
-                    if p is not None and np.isfinite(p))
+                    if p is not None and t is not None and np.isfinite(p))
     return rows
 
 
@@ -88,8 +94,8 @@ def place(row: Row) -> str:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("json", type=Path,
-                        help="eval.json of c2d2 eval, or geometric_eval.json")
+    parser.add_argument("json", type=Path, help="eval.json of c2d2 eval, geometric_eval.json, "
+                        "or metrics.json of c2d2 eval-coverage")
     parser.add_argument("--versus", nargs=3, metavar=("OTHER_JSON", "MODE", "OTHER_MODE"),
                         help="compare MODE with the other file's OTHER_MODE on the segments "
                              "both have: procedures where it errs less or more, and the "
@@ -116,14 +122,14 @@ def main() -> None:
             print(f"{'':13s} by the support of its V: " + ", ".join(
                 f"{name} MAE {np.abs(e).mean():.3f} bias {np.mean(e):+.3f} ({len(e)})"
                 for name, e in by_support.items() if e))
-    if "segments" in data:  # c2d2 eval: both branches
+    if pipeline_eval(data):  # both branches
         print_agreement_by_support(data["segments"])
     if args.versus:
         other, mode, other_mode = args.versus
         other_data = json.loads(Path(other).read_text())
         print_versus(branches[mode], errors(other_data)[other_mode],
                      f"{mode} against {other}'s {other_mode}")
-        if "segments" in data and "segments" in other_data:
+        if pipeline_eval(data) and pipeline_eval(other_data):
             print_agreement_changes(data["segments"], other_data["segments"])
 
 

@@ -593,11 +593,19 @@ def eval_coverage(
         "one (otherwise they read the simulator's).")] = False,
     device: Device = "auto",
 ):
-    """Per-frame MAE per Δ pair, per-segment MAE, bias and 3-class accuracy, deficient
-    segments found (recall, precision), with scatter plots."""
+    """Per-frame MAE per Δ pair, per-segment MAE (with a 95% interval bootstrapped over the
+    procedures), bias and 3-class accuracy, deficient segments found (recall, precision), with
+    scatter plots; metrics.json also holds each procedure's segments, which
+    benchmarks/eval_spread.py compares between two evaluations."""
     from dataclasses import replace
 
-    from learned.coverage_eval import coverage_metrics, format_table, scatter_plots
+    from learned.coverage_eval import (
+        coverage_metrics,
+        format_table,
+        procedure_segments,
+        scatter_plots,
+        segment_mae_interval,
+    )
     from learned.coverage_nets import load_coverage_model
     from learned.coverage_train import evaluate, load_samples
     from learned.device import pick_device
@@ -619,7 +627,9 @@ def eval_coverage(
     out.mkdir(parents=True, exist_ok=True)
     (out / "metrics.json").write_text(json.dumps(
         {"model": str(model_path), "data": [str(p) for p in data], "view_hidden": view_hidden,
-         **metrics}, indent=1) + "\n")
+         **metrics, "segment_mae_interval": segment_mae_interval(predictions),
+         "procedures": procedure_segments(predictions, [s.name for s in samples])},
+        indent=1) + "\n")
     scatter_plots(predictions, out / "scatter.png", f"{model_path.name} on "
                   f"{', '.join(p.name for p in data)}")
     typer.echo(format_table({model_path.stem: metrics}))

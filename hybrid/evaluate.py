@@ -17,13 +17,12 @@ from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
-import scipy.stats
 
 from hybrid import workdir as W
 from hybrid.dataset import Procedure
 from hybrid.pipeline import Models, RunConfig, run_video
 from hybrid.types import InputError
-from learned.coverage_eval import three_class
+from learned.coverage_eval import procedure_interval, three_class
 
 log = logging.getLogger(__name__)
 KEYS = ("truth", "learned", "geometric", "combined")
@@ -56,19 +55,6 @@ def _agreement(a: np.ndarray, b: np.ndarray) -> float:
     none)."""
     ok = np.isfinite(a) & np.isfinite(b)
     return float(np.mean(three_class(a[ok]) == three_class(b[ok]))) if ok.any() else np.nan
-
-
-def procedure_interval(procedures: int, statistic: Callable[[np.ndarray], float],
-                       resamples: int = 2000, seed: int = 0) -> list[float] | None:
-    """95% percentile-bootstrap interval of statistic(picks), picks being procedure indices
-    drawn with replacement (segments of one procedure are not independent, so procedures are
-    resampled whole); None with fewer than two procedures."""
-    if procedures < 2:
-        return None
-    bounds = scipy.stats.bootstrap(
-        (np.arange(procedures),), statistic, vectorized=False, n_resamples=resamples,
-        method="percentile", random_state=seed).confidence_interval
-    return [float(bounds.low), float(bounds.high)]
 
 
 def summarise(rows: list[dict], resamples: int = 2000, seed: int = 0) -> dict:

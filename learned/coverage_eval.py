@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+import scipy.stats
 
 from hybrid.coverage import DELTA_PAIRS_CM, pair_key
 
@@ -76,6 +78,41 @@ def coverage_metrics(predictions: Predictions) -> dict:
 
 def _mean(values: np.ndarray) -> float | None:
     return float(np.mean(values)) if len(values) else None
+
+
+def procedure_interval(procedures: int, statistic: Callable[[np.ndarray], float],
+                       resamples: int = 2000, seed: int = 0) -> list[float] | None:
+    """95% percentile-bootstrap interval of statistic(picks), picks being procedure indices
+    drawn with replacement (segments of one procedure are not independent, so procedures are
+    resampled whole); None with fewer than two procedures."""
+    if procedures < 2:
+        return None
+    bounds = scipy.stats.bootstrap(
+        (np.arange(procedures),), statistic, vectorized=False, n_resamples=resamples,
+        method="percentile", random_state=seed).confidence_interval
+    return [float(bounds.low), float(bounds.high)]
+
+
+def segment_mae_interval(predictions: Predictions) -> list[float] | None:
+    """95% interval of the segment MAE, bootstrapped over the procedures (one per `add`) that
+    have a segment with a defined truth."""
+    errors = [np.abs(p - t)[np.isfinite(t)]
+              for p, t in zip(predictions.segment_pred, predictions.segment_true, strict=True)]
+    errors = [e for e in errors if e.size]
+    return procedure_interval(len(errors), lambda picks: float(
+        np.mean(np.concatenate([errors[i] for i in picks]))))
+
+
+def procedure_segments(predictions: Predictions, names: list[str]) -> dict:
+    """Each procedure's segment truth (None where undefined) and learned prediction, by name,
+    in the form benchmarks/eval_spread.py reads (its mode `learned`)."""
+    if len(names) != len(predictions.segment_pred) or len(set(names)) != len(names):
+        raise ValueError(f"{len(predictions.segment_pred)} procedures need as many distinct "
+                         f"names, got {names}")
+    return {name: {"truth": [float(t) if np.isfinite(t) else None for t in truth],
+                   "learned": {"pred": [float(p) for p in pred]}}
+            for name, pred, truth in zip(names, predictions.segment_pred,
+                                         predictions.segment_true, strict=True)}
 
 
 def format_table(rows: dict[str, dict]) -> str:

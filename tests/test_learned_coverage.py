@@ -24,7 +24,12 @@ from learned.checkpoint import file_tag, save_checkpoint
 from learned.config import COVERAGE_PRESETS, CoverageConfig, coverage_config, parse_overrides
 from learned.coral import adapt, coral_transform, set_source
 from learned.coverage_data import procedure_samples
-from learned.coverage_eval import coverage_metrics
+from learned.coverage_eval import (
+    Predictions,
+    coverage_metrics,
+    procedure_segments,
+    segment_mae_interval,
+)
 from learned.coverage_nets import (
     MIRRORS,
     CoverageModel,
@@ -647,6 +652,16 @@ def test_train_eval_and_adapt_commands(tmp_path, two_procedures):
     assert result.exit_code == 0, result.output
     metrics = json.loads((evaluation / "metrics.json").read_text())
     assert metrics["segments"] == 4 and (evaluation / "scatter.png").stat().st_size > 0
+    # Each procedure's segments, from which the MAE is made again, lie within its interval.
+    procedures = metrics["procedures"]
+    assert sorted(procedures) == [f"{two_procedures.name}/proc_000{i}" for i in (0, 1)]
+    errors = [abs(p - t) for r in procedures.values()
+              for p, t in zip(r["learned"]["pred"], r["truth"], strict=True)]
+    assert np.mean(errors) == pytest.approx(metrics["segment_mae"])
+    per_procedure = [np.mean([abs(p - t) for p, t in zip(r["learned"]["pred"], r["truth"],
+                                                          strict=True)])
+                     for r in procedures.values()]
+    assert metrics["segment_mae_interval"] == pytest.approx(sorted(per_procedure))
 
     adapted = tmp_path / "adapted.safetensors"
     result = runner.invoke(app, ["adapt", "--target", str(two_procedures), "--out", str(adapted),
@@ -919,6 +934,25 @@ def test_eval_coverage_scores_view_hidden_networks_with_the_field_of_view_hidden
                                  str(tmp_path / "e"), "--model", str(plain), "--view-hidden"])
     assert_clean_error(result, "--view-hidden", "plain.safetensors",
                        "not trained with field_of_view 'true' and view_hidden")
+
+
+def test_segment_mae_interval_and_procedure_records():
+    """Two procedures erring 0.1 and 0.3 on every segment: a draw of both from one has
+    probability 1/4, so the 95% bootstrap interval is [0.1, 0.3]; an undefined truth is left
+    out of the MAE and written as None."""
+    predictions = Predictions()
+    for error in (0.1, 0.3):
+        truth = np.array([0.2, 0.5, np.nan])
+        predictions.add(np.zeros((3, 3)), np.zeros((3, 3)), truth + error, truth)
+    assert segment_mae_interval(predictions) == pytest.approx([0.1, 0.3])
+    records = procedure_segments(predictions, ["a/proc_0000", "b/proc_0000"])
+    assert records["b/proc_0000"]["truth"] == [0.2, 0.5, None]
+    assert records["b/proc_0000"]["learned"]["pred"][:2] == pytest.approx([0.5, 0.8])
+    with pytest.raises(ValueError, match="distinct names"):
+        procedure_segments(predictions, ["a/proc_0000", "a/proc_0000"])
+    alone = Predictions()
+    alone.add(np.zeros((1, 3)), np.zeros((1, 3)), np.array([0.5]), np.array([0.4]))
+    assert segment_mae_interval(alone) is None  # no interval from one procedure
 
 
 def test_segments_of_another_frame_rate_are_resampled_to_the_window():
