@@ -64,6 +64,9 @@ def errors(data: dict) -> dict[str, list[Row]]:
                              s.get("geometric_support") if branch == "geometric" else None)
                          for s in data["segments"] if s.get(branch) is not None]
                 for branch in ("learned", "geometric", "combined")}
+    if "procedures" not in data:
+        raise SystemExit("no segments to read: a metrics.json of eval-coverage written before "
+                         "2026-11-30 holds none; evaluate again")
     rows: dict[str, list[Row]] = {}
     for name, procedure in data["procedures"].items():
         truth = procedure["truth"]
@@ -72,7 +75,7 @@ def errors(data: dict) -> dict[str, list[Row]]:
                 rows.setdefault(mode, []).extend(
                     Row(name, k, len(truth), p - t)
                     for k, (p, t) in enumerate(zip(result["pred"], truth, strict=True))
-                    if p is not None and t is not None and np.isfinite(p))
+                    if p is not None and t is not None and np.isfinite(p) and np.isfinite(t))
     return rows
 
 

@@ -609,6 +609,7 @@ def eval_coverage(
     from learned.coverage_nets import load_coverage_model
     from learned.coverage_train import evaluate, load_samples
     from learned.device import pick_device
+    from learned.train import expand_inputs, input_name
     from learned.view import hidden_view
 
     model_path, device = model or _shipped_coverage(), pick_device(device)
@@ -619,6 +620,11 @@ def eval_coverage(
                          f"hidden")
     depth_checkpoint = depth_checkpoint or _shipped_checkpoint()
     net.check_depth(depth_checkpoint, str(model_path))
+    names = [input_name(p) for p in expand_inputs(data)]
+    if repeated := sorted({n for n in names if names.count(n) > 1}):
+        raise InputError(f"--data gives {', '.join(repeated)} more than once (a procedure "
+                         f"twice, or two whose folder and parent folder share names); give "
+                         f"each once")
     samples = load_samples(data, net.config, depth_checkpoint, progress=True, device=device)
     if view_hidden:
         samples = [replace(s, view=hidden_view(len(s.view))) for s in samples]

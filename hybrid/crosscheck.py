@@ -70,6 +70,9 @@ class SegmentRow:
     assessable: bool
     """Enough usable frames (not dark, overexposed or blurred)."""
     usable_fraction: float
+    geometric_error: str | None = None
+    """Why the geometric branch gave this segment no value (None: it gave one, or the whole
+    branch failed: CrossCheck.geometric_error)."""
 
 
 @dataclass
@@ -110,11 +113,13 @@ def cross_check(out: Path, ingested: Ingested, config) -> CrossCheck:
     weight)."""
     out = Path(out)
     learned = json.loads((out / W.LEARNED).read_text())["segments"]
-    geometric, support, error = {}, {}, None
+    geometric, support, reasons, error = {}, {}, {}, None
     if (out / W.GEOMETRIC).is_file():
         key = pair_key(DEFAULT_PAIR_CM)
-        for s in json.loads((out / W.GEOMETRIC).read_text())["segments"]:
+        saved = json.loads((out / W.GEOMETRIC).read_text())
+        for s in saved["segments"]:
             geometric[s["index"]], support[s["index"]] = s["coverage"][key], s.get("support")
+        reasons = {int(k): v for k, v in saved.get("errors", {}).items()}
     elif (out / W.GEOMETRIC_ERROR).is_file():
         error = (out / W.GEOMETRIC_ERROR).read_text().strip()
     usable = ingested.usable
@@ -134,6 +139,6 @@ def cross_check(out: Path, ingested: Ingested, config) -> CrossCheck:
             classes[0], classes[1], None if value_g is None else classes[0] == classes[1],
             combined,
             bool(assessable and combined is not None and combined < config.deficient_below),
-            bool(assessable), fraction))
+            bool(assessable), fraction, reasons.get(index)))
     return CrossCheck(rows, config.deficient_below, config.min_usable_fraction,
                       config.geometric_weight, error)

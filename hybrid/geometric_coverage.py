@@ -152,7 +152,9 @@ def geometric_coverage(lumen: FittedLumen, poses: np.ndarray, depth: Sequence[np
     bar = tqdm(total=n - n % T, desc="geometric coverage", unit="frame", disable=not progress)
     for start in range(0, n - T + 1, T):
         e_min, e_max = camera_ell[start:start + T].min(), camera_ell[start:start + T].max()
-        a, b = np.searchsorted(cells.ell, [e_min + lo, e_max + hi])
+        # the rows of every pair's V, both ends included as in_v below and in the truth
+        a = np.searchsorted(cells.ell, e_min + lo, side="left")
+        b = np.searchsorted(cells.ell, e_max + hi, side="right")
         seen = np.zeros((b - a, len(cells.theta)), dtype=bool)
         points = cells.points[a:b].reshape(-1, 3)
         tolerance = np.repeat(config.occlusion_tolerance * row_radius[a:b], len(cells.theta))

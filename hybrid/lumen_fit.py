@@ -5,9 +5,12 @@ back-projected depth) in one unit, and returns a `FittedLumen` parametrised by a
 
 1. Stations: the camera centres, smoothed over time, resampled every `spacing` along their
    path; a station closer than spacing/2 to an earlier one is a return visit and is dropped.
-   The video is taken to be a withdrawal (unless configured as an insertion), so ℓ grows from
-   where the camera ends towards where it started: towards the cecum, where the look-ahead Δ1
-   of the coverage definition points.
+   A camera that pushes in and then withdraws over the same stretch leaves them out of order
+   in time: the runs of stations that follow one another are joined end to end by their
+   shortest links (`_ordered`). The video is taken to be a withdrawal
+   (unless configured as an insertion), so ℓ grows from where the camera ends towards where
+   it started: the direction in which the cameras' nearest station falls over time, towards
+   the cecum, where the look-ahead Δ1 of the coverage definition points.
    The path is continued straight on beyond its deep end, to cover the look-ahead band, and a
    little beyond its other end; so is the fitted centreline where the surface ends, and at
    least past the cameras beyond it, so that each camera has its own ℓ.
@@ -35,7 +38,10 @@ from pathlib import Path
 import numpy as np
 import open3d as o3d
 from scipy.ndimage import gaussian_filter1d, median_filter
+from scipy.sparse import csr_matrix
+from scipy.sparse.csgraph import minimum_spanning_tree, shortest_path
 from scipy.spatial import cKDTree
+from scipy.spatial.distance import cdist
 
 from hybrid.types import InputError, check_poses
 from hybrid.workdir import write_json
@@ -139,9 +145,8 @@ def fit_lumen(poses: np.ndarray, surface: np.ndarray, fps: float = 30.0,
     if config.thinning > 0:
         surface = _thinned(surface, config.thinning * r0)
     spacing = config.spacing * r0
-    path = _stations(centres, spacing)
-    if config.withdrawal:
-        path = path[::-1]
+    stations, follows = _stations(centres, spacing)
+    path = _ordered(stations, follows, spacing, centres, config.withdrawal)
     if len(path) < 4:
         raise InputError(f"{name}: the camera moves {_length(centres):.3g} units, less than a "
                          f"few cross-sections ({4 * spacing:.3g}); too short for a lumen fit")
@@ -201,17 +206,59 @@ def _thinned(points: np.ndarray, cell: float) -> np.ndarray:
     return _sorted(np.asarray(thin.points))
 
 
-def _stations(centres: np.ndarray, spacing: float) -> np.ndarray:
-    """Points every `spacing` along the path, first visits only."""
+def _stations(centres: np.ndarray, spacing: float) -> tuple[np.ndarray, np.ndarray]:
+    """Points every `spacing` along the path, first visits only, and whether each follows the
+    one kept before it along the path (False after a return visit was skipped)."""
     steps = np.linalg.norm(np.diff(centres, axis=0), axis=1)
     ell = np.concatenate([[0.0], np.cumsum(steps)])
     at = np.arange(0.0, ell[-1], spacing)
     samples = np.stack([np.interp(at, ell, centres[:, k]) for k in range(3)], axis=1)
     kept: list[np.ndarray] = []
+    follows: list[bool] = []
+    previous_kept = False
     for point in samples:
-        if not kept or np.linalg.norm(np.asarray(kept) - point, axis=1).min() >= 0.5 * spacing:
+        new = not kept or np.linalg.norm(np.asarray(kept) - point, axis=1).min() >= 0.5 * spacing
+        if new:
             kept.append(point)
-    return np.asarray(kept)
+            follows.append(previous_kept)
+        previous_kept = new
+    return np.asarray(kept), np.asarray(follows, bool)
+
+
+def _ordered(stations: np.ndarray, follows: np.ndarray, spacing: float, centres: np.ndarray,
+             withdrawal: bool) -> np.ndarray:
+    """The stations in order along the lumen, oriented so that ℓ grows against the camera's
+    travel on a withdrawal and with it on an insertion.
+
+    The runs of stations that follow one another along the camera path are joined, end to
+    end, by the shortest links between them (a minimum spanning tree that keeps every link
+    within a run), and the longest path through that tree is the order; stations off it are
+    dropped. A path without return visits is one run, kept as it is. The orientation: the
+    stations nearest to the cameras run down over time on a withdrawal (a least-squares slope
+    over the frames)."""
+    if len(stations) < 2:
+        return stations
+    distance = cdist(stations, stations)
+    weight = distance / spacing  # other stations are at least 1/2 apart; scipy drops tiny weights
+    run = np.flatnonzero(follows[1:]) + 1
+    weight[run, run - 1] = weight[run - 1, run] = 0.01  # so links within a run are taken first
+    tree = minimum_spanning_tree(weight).toarray() > 0
+    tree = csr_matrix(np.where(tree | tree.T, distance, 0.0))
+
+    def farthest(start: int) -> tuple[int, np.ndarray]:
+        lengths, previous = shortest_path(tree, directed=False, indices=start,
+                                          return_predecessors=True)
+        return int(np.argmax(lengths)), previous
+
+    one_end, _ = farthest(0)
+    other_end, previous = farthest(one_end)
+    chain = [other_end]
+    while chain[-1] != one_end:
+        chain.append(int(previous[chain[-1]]))
+    path = stations[chain]
+    nearest = cKDTree(path).query(centres)[1]
+    slope = np.polyfit(np.arange(len(centres)), nearest, 1)[0]
+    return path[::-1] if (slope > 0) == withdrawal else path
 
 
 def _extended(path: np.ndarray, ahead: int, behind: int, spacing: float) -> np.ndarray:

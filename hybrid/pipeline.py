@@ -486,6 +486,9 @@ def run_video(source: Path, out: Path, config: RunConfig = RunConfig(),
         warnings.append(run.ingested.decode_warning)
     if geometric_error.is_file():
         warnings.append(f"geometric branch failed at {geometric_error.read_text().strip()}")
+    elif (out / W.GEOMETRIC).is_file():  # the learned value alone makes these verdicts
+        for index, reason in json.loads((out / W.GEOMETRIC).read_text()).get("errors", {}).items():
+            echo(f"note: the geometric branch gives segment {index} no value: {reason}")
     if models.coverage.config.field_of_view == "true":
         echo(f"note: {run.view_note()}")
     if (out / W.ODOMETRY).is_file():

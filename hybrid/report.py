@@ -187,6 +187,9 @@ def write_report(out: Path, table: CrossCheck, ingested: Ingested) -> Path:
     if table.geometric_error:
         parts.append(f"<p class='warn'>Geometric branch failed: "
                      f"{html.escape(table.geometric_error)}</p>")
+    parts += [f"<p class='warn'>No geometric value for segment {r.index} (its verdict rests on "
+              f"the learned value): {html.escape(r.geometric_error)}</p>"
+              for r in table.rows if r.geometric_error]
     parts += ["<h2>Coverage over time</h2>", _img(coverage_over_time(table), "coverage"),
               "<h2>Segments</h2>", _table(table)]
     scatter = branch_scatter(table)

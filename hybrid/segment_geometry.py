@@ -11,6 +11,7 @@ window.
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, replace
@@ -22,6 +23,8 @@ from hybrid.coverage import DEFAULT_PAIR_CM, DELTA_PAIRS_CM, SegmentCoverage, pa
 from hybrid.geometric_coverage import GeometricConfig, GeometricCoverage, geometric_coverage
 from hybrid.reconstruction import ReconstructionConfig, ScaledDepth, reconstruct
 from hybrid.types import InputError, thread_count
+
+log = logging.getLogger(__name__)
 
 
 class _Window(Sequence):
@@ -65,7 +68,8 @@ def local_segment_coverage(depth: Sequence[np.ndarray], K: np.ndarray, poses: np
 
     depth and poses in one (any) unit, made metric by `scale` (cm per unit) or, if None, by
     each window's scale rule; a segment whose window cannot be reconstructed (the camera
-    barely moves, no surface) gets coverage None and the reason. Segments are computed in
+    barely moves, no surface, or an error of a library) gets coverage None and the reason,
+    the other segments their own. Segments are computed in
     `threads` threads at once (None: one per core, at most 2: the TSDF holds Python's lock, so
     more gain little, and each holds its window's volume); the result does not depend on it.
     visibility_depth, in depth's unit: the depth the visibility test reads, where it is not
@@ -92,10 +96,13 @@ def local_segment_coverage(depth: Sequence[np.ndarray], K: np.ndarray, poses: np
                 name=label)
             return LocalSegment(replace(result.segments[0], index=index, start=start, stop=stop),
                                 result)
-        except InputError as err:
+        except Exception as err:  # one window's failure must not cost the other segments
+            if not isinstance(err, InputError):
+                log.warning("%s failed", label, exc_info=True)
             empty = SegmentCoverage(index, start, stop, None, None,
                                     {pair_key(p): None for p in DELTA_PAIRS_CM})
-            return LocalSegment(empty, None, str(err))
+            kind = "" if isinstance(err, InputError) else f"{type(err).__name__}: "
+            return LocalSegment(empty, None, f"{kind}{err}")
 
     with ThreadPoolExecutor(thread_count(threads, "segment threads", most=2)) as pool:
         return list(pool.map(one, range(n // segment_frames)))
@@ -134,7 +141,9 @@ def save_maps(segments: list[LocalSegment], folder: Path, title: str) -> None:
         ax.imshow(state, aspect="auto", origin="lower", interpolation="nearest", vmin=0, vmax=2,
                   cmap=ListedColormap(["0.9", "#4c9a2a", "#d62728"]),
                   extent=(0, 360, 0, hi - lo))
-        ax.set_title(f"{s.segment.index}: {s.segment.coverage[key]:.2f}", fontsize=8)
+        value = s.segment.coverage[key]
+        ax.set_title(f"{s.segment.index}: {'n/a' if value is None else f'{value:.2f}'}",
+                     fontsize=8)
         ax.set_xticks([0, 180, 360])
         ax.tick_params(labelsize=7)
     axes[0, 0].set_ylabel("ℓ in the segment's V (cm)", fontsize=8)

@@ -1,4 +1,5 @@
-"""Metrics and plots of predicted against true coverage (paper section 5.2)."""
+"""Metrics and plots of predicted against true coverage (paper section 5.2), with intervals
+bootstrapped over procedures."""
 
 from __future__ import annotations
 
@@ -7,7 +8,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-import scipy.stats
 
 from hybrid.coverage import DELTA_PAIRS_CM, pair_key
 
@@ -85,6 +85,8 @@ def procedure_interval(procedures: int, statistic: Callable[[np.ndarray], float]
     """95% percentile-bootstrap interval of statistic(picks), picks being procedure indices
     drawn with replacement (segments of one procedure are not independent, so procedures are
     resampled whole); None with fewer than two procedures."""
+    import scipy.stats  # here: the pipeline imports this module, and scipy.stats is slow to load
+
     if procedures < 2:
         return None
     bounds = scipy.stats.bootstrap(

@@ -2,14 +2,17 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
-from conftest import wall_fraction
+from conftest import pose, wall_fraction
 from test_coverage import (
     BACKWARD,
     ELL,
     FORWARD,
     FORWARD_CAMERA,
+    IDENTITY,
     SIDE,
     SIDE_CAMERA,
     VIEWS,
@@ -146,6 +149,34 @@ def test_lumen_reaches_past_the_cameras():
     assert ell[0] - ell[-1] == pytest.approx(path[-1], abs=0.25 * 2.0)
 
 
+def straight_tube(radius: float = 2.0) -> np.ndarray:
+    """Points on the cylinder x² + y² = radius² for z in [-6, 40) cm."""
+    z = np.arange(-6.0, 40.0, 0.05)
+    angle = np.linspace(0, 2 * np.pi, 120, endpoint=False)
+    return np.stack(np.broadcast_arrays(radius * np.cos(angle)[None], radius * np.sin(
+        angle)[None], z[:, None]), axis=-1).reshape(-1, 3)
+
+
+@pytest.mark.parametrize("depths", [(10, 16, 2), (10, 13, 2), (14, 2, 8), (14, 2)])
+def test_lumen_fit_follows_the_tube_when_the_camera_goes_back_over_its_path(depths):
+    """A window that pushes in before withdrawing (or withdraws, then pushes in again) visits
+    stations out of order in time: the centreline still runs one way along the tube (it
+    folded back on itself, or the fit failed, when they were taken in time order), with ℓ
+    growing towards the deep end on a withdrawal and against it on an insertion; and the
+    cameras get the ℓ of their depth."""
+    frames = [150 if abs(b - a) < 7 else 450 for a, b in zip(depths, depths[1:], strict=False)]
+    z = np.concatenate([np.linspace(a, b, n) for a, b, n in zip(depths, depths[1:], frames,
+                                                                      strict=False)])
+    poses = np.repeat(np.eye(4)[None], len(z), axis=0)
+    poses[:, 0, 3], poses[:, 2, 3] = 0.3, z
+    for withdrawal in (True, False):
+        lumen = fit_lumen(poses, straight_tube(), config=LumenFitConfig(withdrawal=withdrawal))
+        step = np.diff(lumen.points[:, 2])
+        assert (step > 0).all() if withdrawal else (step < 0).all()
+    ell, _ = Lumen(lumen.points).project(poses[:, :3, 3])  # the insertion's, ℓ = start - z
+    assert ell + z == pytest.approx(np.full_like(z, (ell + z).mean()), abs=0.1)
+
+
 def test_lumen_fit_is_unit_free():
     """The same fit in another unit. The factor is a power of two, so that scaling is exact in
     floating point: with 0.1, rounding moved the number of stations by one and the centreline
@@ -241,6 +272,26 @@ def test_a_segment_is_the_union_of_its_frames():
     assert union >= max(a.segments[0].coverage[key] for a in alone) - 1e-12
     expected = wall_fraction(SIDE_CAMERA, views, RADIUS, ELL + 1.0, ELL + 4.0, 6)
     assert union == pytest.approx(expected.value, abs=0.02)
+
+
+def test_v_includes_the_row_at_its_far_edge():
+    """V(Δ0, Δ1) includes ℓ = ℓmax + Δ1 (as the truth does): with the camera where that is a
+    cell row's centre exactly, the row is part of the expected wall (it was left out of the
+    rows scanned when Δ1 is the widest pair's, while in V by the inequality)."""
+    config = GeometricConfig(segment_frames=1)
+    long = FittedLumen(np.array([[0.0, 0.0, 0.0], [0.0, 0.0, 40.0]]), np.array([RADIUS] * 2))
+    rows = tube_cells(long, config.cell_length_cm, config.cells_around).ell
+    for z in np.arange(2.0, 10.0, 0.02):
+        view = pose(IDENTITY, (0.0, 0.0, z))
+        ell = Lumen(long.points).project(view[None, :3, 3])[0][0]
+        if (edge := np.flatnonzero(rows == ell + 4.0)).size:
+            break
+    else:
+        pytest.fail("no camera ℓ puts ℓ + 4 on a row centre")
+    result = geometric_coverage(long, view[None], [np.full((48, 64), 50.0)], FORWARD_CAMERA.K,
+                                config=config, delta_pairs=((1.0, 4.0),))  # the widest Δ1
+    assert result.expected[edge[0]].all()
+    assert not result.expected[edge[0] + 1].any()
 
 
 def test_support_is_the_share_of_v_on_the_fitted_lumen():
@@ -379,3 +430,41 @@ def test_local_segment_coverage_matches_the_exact_lumen(tmp_path):
     stuck = local_segment_coverage([d * 10 for d in depth], camera.K, still, 45, 20, None,
                                    config, GeometricConfig())
     assert all(s.segment.coverage[key] is None and "too short" in s.error for s in stuck)
+
+
+def test_one_segment_failing_in_a_library_leaves_the_others_theirs(monkeypatch):
+    """A window whose fit raises an error of a library (not an InputError) gets no value and
+    that error as its reason; the other segments are computed (the whole branch failed)."""
+    from hybrid import segment_geometry
+    from hybrid.reconstruction import ReconstructionConfig
+
+    camera = Camera(64, 48, 30.0, 30.0, 31.5, 23.5)
+    poses = np.repeat(np.eye(4)[None], 90, 0)
+    poses[:, 2, 3] = np.linspace(8.0, 2.0, 90)
+    depth = [cylinder_depth(camera, p) for p in poses]
+    reconstruct = segment_geometry.reconstruct
+
+    def failing_second(*args, name: str, **kwargs):
+        if name.endswith("segment 1"):
+            raise np.linalg.LinAlgError("SVD did not converge")
+        return reconstruct(*args, name=name, **kwargs)
+
+    monkeypatch.setattr(segment_geometry, "reconstruct", failing_second)
+    config = ReconstructionConfig(typical_radius_cm=RADIUS, voxel_cm=0.05)
+    local = segment_geometry.local_segment_coverage(depth, camera.K, poses, 45, 20, None,
+                                                    config, GeometricConfig())
+    assert local[0].error is None and local[0].segment.coverage[pair_key((1.0, 4.0))] > 0.3
+    assert local[1].result is None and local[1].segment.coverage[pair_key((1.0, 4.0))] is None
+    assert local[1].error == "LinAlgError: SVD did not converge"
+
+
+def test_maps_of_a_segment_with_an_empty_v(tmp_path):
+    """A segment with a result but no coverage (its V empty) is drawn with 'n/a'."""
+    from hybrid.segment_geometry import LocalSegment, save_maps
+
+    result = geometric_coverage(AXIS, FORWARD[None], [cylinder_depth(FORWARD_CAMERA, FORWARD)],
+                                FORWARD_CAMERA.K, config=FINE)
+    empty = {k: None for k in result.segments[0].coverage}
+    save_maps([LocalSegment(replace(result.segments[0], coverage=empty), result)], tmp_path,
+              "empty V")
+    assert (tmp_path / "coverage_map.png").stat().st_size > 0

@@ -652,7 +652,8 @@ def test_train_eval_and_adapt_commands(tmp_path, two_procedures):
     assert result.exit_code == 0, result.output
     metrics = json.loads((evaluation / "metrics.json").read_text())
     assert metrics["segments"] == 4 and (evaluation / "scatter.png").stat().st_size > 0
-    # Each procedure's segments, from which the MAE is made again, lie within its interval.
+    # Each procedure's segments give the MAE again; with two procedures the interval runs
+    # from the one's MAE to the other's (a draw of both from one has probability 1/4).
     procedures = metrics["procedures"]
     assert sorted(procedures) == [f"{two_procedures.name}/proc_000{i}" for i in (0, 1)]
     errors = [abs(p - t) for r in procedures.values()
@@ -898,6 +899,16 @@ def test_eval_coverage_with_a_depth_checkpoint_as_model(tmp_path, two_procedures
     assert_clean_error(result, "depth.safetensors", "not a 'coverage'")
 
 
+def test_eval_coverage_refuses_a_procedure_given_twice(tmp_path, two_procedures):
+    """Its segments would be counted twice, and the per-procedure records could not tell the
+    two apart: refused before anything is computed or written."""
+    out = tmp_path / "e"
+    result = runner.invoke(app, ["eval-coverage", "--data", str(two_procedures), "--data",
+                                 str(two_procedures / "proc_0001"), "--out", str(out)])
+    assert_clean_error(result, f"{two_procedures.name}/proc_0001", "more than once")
+    assert not out.exists()
+
+
 def test_eval_coverage_scores_view_hidden_networks_with_the_field_of_view_hidden(
         tmp_path, two_procedures):
     """The default reads the simulator's field of view; --view-hidden scores what a run
@@ -953,6 +964,8 @@ def test_segment_mae_interval_and_procedure_records():
     alone = Predictions()
     alone.add(np.zeros((1, 3)), np.zeros((1, 3)), np.array([0.5]), np.array([0.4]))
     assert segment_mae_interval(alone) is None  # no interval from one procedure
+    alone.add(np.zeros((1, 3)), np.zeros((1, 3)), np.array([0.5]), np.array([np.nan]))
+    assert segment_mae_interval(alone) is None  # nor with a second that has no defined truth
 
 
 def test_segments_of_another_frame_rate_are_resampled_to_the_window():

@@ -52,7 +52,8 @@ SEED = 0
 STAGES = ("ingest", "depth", "posegraph", "reconstruction", "geometric", "learned", "report")
 CSV_COLUMNS = ["index", "start_frame", "stop_frame", "start_s", "end_s", "learned",
                "geometric", "geometric_support", "difference", "learned_class",
-               "geometric_class", "agree", "coverage", "deficient", "assessable", "usable_fraction"]
+               "geometric_class", "agree", "coverage", "deficient", "assessable", "usable_fraction",
+               "geometric_error"]
 """coverage.csv as README.md documents it: time range, both coverages (and the geometric one's
 support), their difference, both 3-class labels, agreement, the combined coverage, deficient,
 assessable (and its usable fraction)."""
@@ -348,6 +349,29 @@ def test_cli_resumes_a_partial_run_with_the_same_config(pipeline_run, procedure,
     after = snapshot(work)
     unchanged = [name for name in kept if not name.startswith(("learned.json", "timing.json"))]
     assert {name: after[name] for name in unchanged} == {name: kept[name] for name in unchanged}
+
+
+def test_a_segment_without_a_geometric_value_is_noted_with_its_reason(pipeline_run, procedure,
+                                                                     tmp_path):
+    """geometric.json gives segment 1 no value (its window could not be reconstructed): the run
+    prints why, and the cross-check, the CSV and the report carry the reason."""
+    out, _ = pipeline_run
+    work = tmp_path / "work"
+    shutil.copytree(out, work)
+    saved = json.loads((work / W.GEOMETRIC).read_text())
+    saved["segments"][1]["coverage"] = {k: None for k in saved["segments"][1]["coverage"]}
+    saved["errors"] = {"1": "segment 1: too short for a lumen fit"}
+    W.write_json(work / W.GEOMETRIC, saved)
+    for name in (W.COVERAGE_JSON, W.COVERAGE_CSV, W.REPORT):
+        (work / name).unlink()
+    result = runner.invoke(app, ["run", str(procedure.path), "--out", str(work)])
+    assert result.exit_code == 0, result.output
+    assert ("note: the geometric branch gives segment 1 no value: segment 1: too short for a "
+            "lumen fit") in result.stdout
+    rows = json.loads((work / W.COVERAGE_JSON).read_text())["segments"]
+    assert [r["geometric_error"] for r in rows] == [None, "segment 1: too short for a lumen fit"]
+    assert rows[1]["coverage"] == rows[1]["learned"]
+    assert "No geometric value for segment 1" in (work / W.REPORT).read_text()
 
 
 def test_geometric_stages_repeat_exactly(pipeline_run, procedure, tmp_path):
@@ -815,7 +839,8 @@ def hand_made_work_dir(out: Path, geometric: list[float | None] | None) -> Inges
         W.write_json(out / W.GEOMETRIC, {"segments": [
             {"index": i, "coverage": {"1-3": 0.0, "1-4": v, "1-6": 1.0}}
             | ({"support": support[i]} if i in support else {})
-            for i, v in enumerate(geometric)]})
+            for i, v in enumerate(geometric)], "errors": {
+            str(i): f"segment {i}: too short" for i, v in enumerate(geometric) if v is None}})
     dark, over, blur = ([False] * 50 for _ in range(3))
     for t in range(20, 25):  # segment 2: 5 of 10 frames usable, exactly the threshold
         dark[t] = True
@@ -871,11 +896,13 @@ def test_cross_check_by_hand(tmp_path):
     # the threshold (below is strict).
     assert [r.deficient for r in rows] == [False, False, True, False, False]
     assert table.geometric_error is None
+    assert [r.geometric_error for r in rows] == [None] * 4 + ["segment 4: too short"]
 
     table.save(tmp_path / "c.json", tmp_path / "c.csv")
     with (tmp_path / "c.csv").open() as f:
         saved = list(csv.DictReader(f))
     assert [row["geometric"] for row in saved][3:] == ["0.1", ""]
+    assert [row["geometric_error"] for row in saved][3:] == ["", "segment 4: too short"]
     saved = json.loads((tmp_path / "c.json").read_text())
     assert (saved["agreement"], saved["geometric_weight"]) == (0.5, 1.0)
 
