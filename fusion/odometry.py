@@ -25,7 +25,7 @@ import open3d as o3d
 from scipy.ndimage import distance_transform_edt
 from tqdm import tqdm
 
-from hybrid.types import InputError, thread_count
+from hybrid.types import InputError, sampling_stride, thread_count
 
 _odometry = o3d.t.pipelines.odometry
 _BLOCK = 64
@@ -240,9 +240,10 @@ def _rgbd(colour: np.ndarray, depth: np.ndarray) -> o3d.t.geometry.RGBDImage:
 
 
 def median_depth(depth: Sequence[np.ndarray], region: np.ndarray | None, name: str) -> float:
-    """Median of the valid depth inside the region of every 10th frame (of every frame if
-    those hold none): the unit of the odometry's thresholds."""
-    for stride in (10, 1):
+    """Median of the valid depth inside the region of every 10th frame, of at most
+    SAMPLED_FRAMES evenly spaced ones in a longer video (of every frame if those hold none):
+    the unit of the odometry's thresholds."""
+    for stride in (sampling_stride(len(depth), 10), 1):
         values = []
         for f in range(0, len(depth), stride):
             d = np.asarray(depth[f], np.float32)

@@ -49,9 +49,11 @@ class TsdfConfig:
                     "depth_max": self.depth_max, "block_resolution": self.block_resolution,
                     "block_count": self.block_count, "stride": self.stride}
         bad = [k for k, v in positive.items() if not (np.isfinite(v) and v > 0)]
+        bad += [k for k in ("block_resolution", "block_count", "stride")
+                if k not in bad and getattr(self, k) != int(getattr(self, k))]
         if bad or not (np.isfinite(self.weight_threshold) and self.weight_threshold >= 0):
-            raise InputError(f"TsdfConfig needs positive {', '.join(bad) or 'values'} and a "
-                             f"weight_threshold >= 0: {self}")
+            raise InputError(f"TsdfConfig needs positive {', '.join(bad) or 'values'} (whole "
+                             f"numbers of blocks and frames) and a weight_threshold >= 0: {self}")
 
 
 @dataclass
@@ -124,7 +126,8 @@ class TsdfVolume:
         # Open3D wants world->camera, float64; float depth with depth_scale 1.
         extrinsic = o3c.Tensor(np.linalg.inv(pose), o3c.float64)
         depth_image = o3d.t.geometry.Image(o3c.Tensor(depth))
-        settings = (1.0, self.config.depth_max, self.config.truncation_voxels)
+        # floats, as Open3D's bindings take no int here (nor floats for the grid's sizes)
+        settings = (1.0, float(self.config.depth_max), float(self.config.truncation_voxels))
         blocks = self.grid.compute_unique_block_coordinates(depth_image, self.intrinsic,
                                                             extrinsic, *settings)
         if color is None:
@@ -189,8 +192,8 @@ def _new_grid(config: TsdfConfig, with_color: bool) -> o3d.t.geometry.VoxelBlock
     names, dtypes, channels = ["tsdf", "weight"], [o3c.float32, o3c.float32], [1, 1]
     if with_color:
         names, dtypes, channels = names + ["color"], dtypes + [o3c.float32], channels + [3]
-    return o3d.t.geometry.VoxelBlockGrid(names, dtypes, channels, config.voxel_size,
-                                         config.block_resolution, config.block_count)
+    return o3d.t.geometry.VoxelBlockGrid(names, dtypes, channels, float(config.voxel_size),
+                                         int(config.block_resolution), int(config.block_count))
 
 
 def _check_intrinsics(K: np.ndarray, name: str) -> np.ndarray:

@@ -20,7 +20,7 @@ import numpy as np
 
 from fusion.tsdf import FusedMesh, TsdfConfig, fuse
 from hybrid.lumen_fit import FittedLumen, LumenFitConfig, fit_lumen, metric_scale
-from hybrid.types import InputError, check_poses
+from hybrid.types import InputError, check_poses, sampling_stride
 
 
 @dataclass(frozen=True)
@@ -37,7 +37,8 @@ class ReconstructionConfig:
     depth_max_cm: float = 6.0
     """Depth beyond which pixels are not fused (the far lumen is dark and uncertain)."""
     cloud_stride: int = 10
-    """Frames between those back-projected for the first (scale) lumen fit."""
+    """Frames between those back-projected for the first (scale) lumen fit (more in a video
+    longer than hybrid.types.SAMPLED_FRAMES of them)."""
     cloud_pixel_stride: int = 4
     """Pixels between those back-projected, along each image axis."""
     tsdf_stride: int = 2
@@ -102,7 +103,8 @@ def reconstruct(depth: Sequence[np.ndarray], K: np.ndarray, poses: np.ndarray,
                          + "; give one of each per frame")
     if scale is None:
         masked = ScaledDepth(depth, 1.0, region)
-        cloud = back_project(masked, K, poses, config.cloud_stride, config.cloud_pixel_stride)
+        cloud = back_project(masked, K, poses, sampling_stride(len(poses), config.cloud_stride),
+                             config.cloud_pixel_stride)
         first = fit_lumen(poses, cloud, fps, config.lumen, name=f"{name} (scale fit)")
         scale = metric_scale(first, config.typical_radius_cm)
     if not (np.isfinite(scale) and scale > 0):

@@ -117,3 +117,15 @@ def thread_count(threads: int | None, name: str, most: int | None = None) -> int
     cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else \
         os.cpu_count() or 1
     return min(cores, most or cores)
+
+
+SAMPLED_FRAMES = 500
+"""At most this many frames of a video are sampled where a statistic of the whole video is
+taken (the odometry's depth unit, the cloud of the first lumen fit), so that its memory does
+not grow with the video's length."""
+
+
+def sampling_stride(frames: int, stride: int) -> int:
+    """Every `stride`-th of `frames` frames, or a longer stride that samples at most
+    SAMPLED_FRAMES of them."""
+    return max(stride, -(-frames // SAMPLED_FRAMES))

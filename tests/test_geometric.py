@@ -468,3 +468,23 @@ def test_maps_of_a_segment_with_an_empty_v(tmp_path):
     save_maps([LocalSegment(replace(result.segments[0], coverage=empty), result)], tmp_path,
               "empty V")
     assert (tmp_path / "coverage_map.png").stat().st_size > 0
+
+
+def test_the_scale_fit_of_a_long_video_back_projects_a_bounded_number_of_frames(monkeypatch):
+    """Every cloud_stride-th frame of a short video; at most SAMPLED_FRAMES of a long one (its
+    memory would grow with the video's length)."""
+    from hybrid import reconstruction
+    from hybrid.types import SAMPLED_FRAMES
+
+    strides = []
+
+    def recorded(depth, K, poses, frame_stride, pixel_stride):
+        strides.append(frame_stride)
+        raise InputError("stop here")
+
+    monkeypatch.setattr(reconstruction, "back_project", recorded)
+    for frames in (1000, 60_000):
+        poses = np.repeat(np.eye(4)[None], frames, axis=0)
+        with pytest.raises(InputError, match="stop here"):
+            reconstruction.reconstruct([np.ones((4, 5), np.float32)] * frames, np.eye(3), poses)
+    assert strides == [10, 60_000 // SAMPLED_FRAMES]

@@ -194,3 +194,29 @@ def test_bad_input_is_refused(procedure):
         OdometryConfig(iterations=())
     with pytest.raises(InputError, match="threads"):
         refine_relative_poses(rel, depth, rgb, K, threads=0)
+
+
+class _CountedDepth:
+    """A long video's depth maps, made when read (each frame's value its index + 1)."""
+
+    def __init__(self, frames: int):
+        self.frames, self.read = frames, 0
+
+    def __len__(self) -> int:
+        return self.frames
+
+    def __getitem__(self, index: int) -> np.ndarray:
+        self.read += 1
+        return np.full((4, 5), index + 1.0, np.float32)
+
+
+def test_the_depth_unit_of_a_long_video_reads_a_bounded_number_of_frames():
+    """Every 10th frame of a short video; evenly spaced frames, at most SAMPLED_FRAMES of them,
+    of a long one, so that the memory does not grow with its length."""
+    from hybrid.types import SAMPLED_FRAMES, sampling_stride
+
+    short, long = _CountedDepth(1000), _CountedDepth(60_000)
+    assert median_depth(short, None, "short") == np.median(np.arange(1, 1001, 10))
+    assert short.read == 100
+    assert median_depth(long, None, "long") == np.median(np.arange(1, 60_001, 120))
+    assert long.read == SAMPLED_FRAMES == 60_000 // sampling_stride(60_000, 10)

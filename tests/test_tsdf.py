@@ -120,6 +120,17 @@ def test_weight_threshold_counts_frames():
 def test_config_rejects_bad_values(field):
     with pytest.raises(InputError, match="TsdfConfig"):
         TsdfConfig(**{field: -1})
+    with pytest.raises(InputError, match="block_resolution"):
+        TsdfConfig(block_resolution=16.5)
+
+
+def test_whole_numbers_and_floats_are_taken_where_open3d_wants_the_other():
+    """Open3D's bindings refuse an int depth limit or truncation and a float block size: the
+    same fusion with depth_max=5, truncation_voxels=4 and block_resolution=16.0."""
+    config = TsdfConfig(voxel_size=0.1, depth_max=5, truncation_voxels=4, block_count=200,
+                        block_resolution=16.0)
+    mesh = fuse(((render(p)[0], None) for p in POSES[:4]), K, POSES[:4], config)
+    assert abs(np.median(np.hypot(mesh.vertices[:, 0], mesh.vertices[:, 1])) - RADIUS) < 0.05
 
 
 @pytest.mark.parametrize("frames, K, poses, match", [
