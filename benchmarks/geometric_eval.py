@@ -45,6 +45,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 import time
 from pathlib import Path
 
@@ -209,6 +210,10 @@ def local_row(mode: str, proc: Procedure, learned: dict, depth_true: list[np.nda
     local = local_segment_coverage(depth, K, poses, segment_frames, segment_frames // 2, None,
                                    config, geometric, proc.camera.fps, proc.path.name,
                                    scale=scale, visibility_depth=seen)
+    for s in local:  # a segment without a value is left out of the MAE: say why
+        if s.error:
+            print(f"{mode}: {proc.path.name} segment {s.segment.index}: {s.error}",
+                  file=sys.stderr)
     key = pair_key(DEFAULT_PAIR_CM)
     return {"pred": [np.nan if s.segment.coverage[key] is None else s.segment.coverage[key]
                      for s in local],

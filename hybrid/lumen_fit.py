@@ -6,8 +6,8 @@ back-projected depth) in one unit, and returns a `FittedLumen` parametrised by a
 1. Stations: the camera centres, smoothed over time, resampled every `spacing` along their
    path; a station closer than spacing/2 to an earlier one is a return visit and is dropped.
    A camera that pushes in and then withdraws over the same stretch leaves them out of order
-   in time: the runs of stations that follow one another are joined end to end by their
-   shortest links (`_ordered`). The video is taken to be a withdrawal
+   in time: the runs of stations that follow one another are joined end to end by the
+   shortest links between their ends (`_ordered`). The video is taken to be a withdrawal
    (unless configured as an insertion), so ℓ grows from where the camera ends towards where
    it started: the direction in which the cameras' nearest station falls over time, towards
    the cecum, where the look-ahead Δ1 of the coverage definition points.
@@ -38,10 +38,9 @@ from pathlib import Path
 import numpy as np
 import open3d as o3d
 from scipy.ndimage import gaussian_filter1d, median_filter
-from scipy.sparse import csr_matrix
+from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import minimum_spanning_tree, shortest_path
 from scipy.spatial import cKDTree
-from scipy.spatial.distance import cdist
 
 from hybrid.types import InputError, check_poses
 from hybrid.workdir import write_json
@@ -230,20 +229,27 @@ def _ordered(stations: np.ndarray, follows: np.ndarray, spacing: float, centres:
     """The stations in order along the lumen, oriented so that ℓ grows against the camera's
     travel on a withdrawal and with it on an insertion.
 
-    The runs of stations that follow one another along the camera path are joined, end to
-    end, by the shortest links between them (a minimum spanning tree that keeps every link
-    within a run), and the longest path through that tree is the order; stations off it are
-    dropped. A path without return visits is one run, kept as it is. The orientation: the
-    stations nearest to the cameras run down over time on a withdrawal (a least-squares slope
-    over the frames)."""
-    if len(stations) < 2:
+    The runs of stations that follow one another along the camera path are joined end to end
+    by the shortest links between their ends (a minimum spanning tree over the links within
+    each run and those between run ends), and the longest path through that tree is the order;
+    stations off it are dropped. A path without return visits is one run, kept as it is. The
+    orientation: the stations nearest to the cameras run down over time on a withdrawal (a
+    least-squares slope over the frames, so it follows where the camera spent its time)."""
+    n = len(stations)
+    if n < 2:
         return stations
-    distance = cdist(stations, stations)
-    weight = distance / spacing  # other stations are at least 1/2 apart; scipy drops tiny weights
-    run = np.flatnonzero(follows[1:]) + 1
-    weight[run, run - 1] = weight[run - 1, run] = 0.01  # so links within a run are taken first
-    tree = minimum_spanning_tree(weight).toarray() > 0
-    tree = csr_matrix(np.where(tree | tree.T, distance, 0.0))
+    run = np.flatnonzero(follows[1:]) + 1  # station k follows k - 1 within a run
+    starts = np.flatnonzero(~follows)
+    ends = np.unique(np.concatenate([starts, starts[1:] - 1, [n - 1]]))
+    a, b = np.meshgrid(ends, ends, indexing="ij")
+    between = (a < b) & ~((b == a + 1) & follows[b])  # the links within runs are below
+    first, second = np.concatenate([run - 1, a[between]]), np.concatenate([run, b[between]])
+    length = np.linalg.norm(stations[first] - stations[second], axis=1)
+    # stations are spacing/2 or more apart: links within a run (0.01) are taken first
+    weight = np.where(np.arange(len(first)) < len(run), 0.01, length / spacing)
+    tree = minimum_spanning_tree(coo_matrix((weight, (first, second)), shape=(n, n))).tocoo()
+    tree = coo_matrix((np.linalg.norm(stations[tree.row] - stations[tree.col], axis=1),
+                       (tree.row, tree.col)), shape=(n, n))
 
     def farthest(start: int) -> tuple[int, np.ndarray]:
         lengths, previous = shortest_path(tree, directed=False, indices=start,

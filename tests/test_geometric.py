@@ -159,11 +159,12 @@ def straight_tube(radius: float = 2.0) -> np.ndarray:
 
 @pytest.mark.parametrize("depths", [(10, 16, 2), (10, 13, 2), (14, 2, 8), (14, 2)])
 def test_lumen_fit_follows_the_tube_when_the_camera_goes_back_over_its_path(depths):
-    """A window that pushes in before withdrawing (or withdraws, then pushes in again) visits
-    stations out of order in time: the centreline still runs one way along the tube (it
-    folded back on itself, or the fit failed, when they were taken in time order), with ℓ
-    growing towards the deep end on a withdrawal and against it on an insertion; and the
-    cameras get the ℓ of their depth."""
+    """A window that pushes in before withdrawing visits stations out of order in time: the
+    centreline still runs one way along the tube (taken in time order, it folded back on
+    itself for a 6-cm push, and the fit failed for a 3-cm one), with ℓ growing towards the
+    deep end on a withdrawal and against it on an insertion, and the cameras get the ℓ of
+    their depth; as they do, as before, when the camera pushes in again at the end or goes
+    one way only."""
     frames = [150 if abs(b - a) < 7 else 450 for a, b in zip(depths, depths[1:], strict=False)]
     z = np.concatenate([np.linspace(a, b, n) for a, b, n in zip(depths, depths[1:], frames,
                                                                       strict=False)])
@@ -175,6 +176,25 @@ def test_lumen_fit_follows_the_tube_when_the_camera_goes_back_over_its_path(dept
         assert (step > 0).all() if withdrawal else (step < 0).all()
     ell, _ = Lumen(lumen.points).project(poses[:, :3, 3])  # the insertion's, ℓ = start - z
     assert ell + z == pytest.approx(np.full_like(z, (ell + z).mean()), abs=0.1)
+
+
+def test_stations_of_a_path_that_crosses_itself_stay_in_order():
+    """An 'alpha' path: 20 cm along x, a half turn, then back across its own start. Where it
+    crosses the first arm its stations are return visits, and the run after them must join
+    the others at their ends, not midway (which dropped a whole arm from the longest path)."""
+    from hybrid.lumen_fit import _ordered, _stations
+
+    turn = np.linspace(0, np.pi, 300)
+    path = np.concatenate([np.linspace([0, 0, 0], [20, 0, 0], 400),
+                           np.c_[20 + 5 * np.sin(turn), 5 - 5 * np.cos(turn), 0 * turn],
+                           np.linspace([20, 10, 0], [0.3, -9.7, 0], 600)])
+    stations, follows = _stations(path, 1.0)
+    assert not follows.all()  # the crossing skipped some
+    ordered = _ordered(stations, follows, 1.0, path, withdrawal=False)
+    assert len(ordered) == len(stations)
+    assert np.abs(ordered[0]).max() < 1e-9  # an insertion: ℓ grows from where it started
+    # no jump but over the station dropped at the crossing (two spacings)
+    assert np.linalg.norm(np.diff(ordered, axis=0), axis=1).max() < 2.5
 
 
 def test_lumen_fit_is_unit_free():
