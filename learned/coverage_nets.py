@@ -266,8 +266,8 @@ class CoverageModel(nn.Module):
         """The per-segment network's pooled layer (S, len(MIRRORS), C) for the windows
         [s, s + T) of one video's (N, len(MIRRORS), F) features, one row per mirror view.
         `batch` windows per pass: a 30-minute video's 180 segments raised the peak memory by
-        548 MiB at 256, by 163 at 32, and 1,791 windows ran in 1.7 s at 32 against 3.5 at 256
-        on this CPU (docs/benchmarks.md, "After the memory caps")."""
+        548 MiB at 256 and by 159 at 32, and ran faster at 32 (docs/benchmarks.md, "Where the
+        peak is")."""
         T, F, M = self.config.segment_frames, self.config.feature_size, len(MIRRORS)
         if features.ndim != 3 or features.shape[1:] != (M, F):
             raise InputError(f"features must be (N, {M}, {F}) (frames, mirror views, features) "

@@ -178,6 +178,25 @@ def test_lumen_fit_follows_the_tube_when_the_camera_goes_back_over_its_path(dept
     assert ell + z == pytest.approx(np.full_like(z, (ell + z).mean()), abs=0.1)
 
 
+def test_a_withdrawal_after_a_push_in_reads_its_coverage_on_the_fitted_lumen():
+    """The 6-cm push-in above, then the withdrawal from 16 to 2 cm: its segment's coverage on
+    the lumen fitted to the whole window is that on the true axis (a folded lumen gave some
+    of its cameras one ℓ and cut V short)."""
+    z = np.concatenate([np.linspace(10, 16, 150), np.linspace(16, 2, 450)])
+    poses = np.repeat(np.eye(4)[None], len(z), axis=0)
+    poses[:, 0, 3], poses[:, 2, 3] = 0.3, z
+    fitted = fit_lumen(poses, straight_tube())
+    axis = FittedLumen(np.array([[0.0, 0.0, -10.0], [0.0, 0.0, 40.0]]), np.array([RADIUS] * 2))
+    withdrawal = poses[300:]
+    depth = [cylinder_depth(FORWARD_CAMERA, p) for p in withdrawal]
+    config = GeometricConfig(segment_frames=len(withdrawal))
+    key = pair_key((1.0, 4.0))
+    on_fit, on_axis = (geometric_coverage(lumen, withdrawal, depth, FORWARD_CAMERA.K,
+                                          config=config).segments[0].coverage[key]
+                       for lumen in (fitted, axis))
+    assert on_fit == pytest.approx(on_axis, abs=0.02)
+
+
 def test_stations_of_a_path_that_crosses_itself_stay_in_order():
     """An 'alpha' path: 20 cm along x, a half turn, then back across its own start. Where it
     crosses the first arm its stations are return visits, and the run after them must join
