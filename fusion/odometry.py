@@ -25,7 +25,7 @@ import open3d as o3d
 from scipy.ndimage import distance_transform_edt
 from tqdm import tqdm
 
-from hybrid.types import InputError, sampling_stride, thread_count
+from hybrid.types import InputError, check_depth, sampling_stride, thread_count
 
 _odometry = o3d.t.pipelines.odometry
 _BLOCK = 64
@@ -181,7 +181,7 @@ def refine_relative_poses(relative: dict[int, np.ndarray], depth: Sequence[np.nd
         for begin in range(0, n, _BLOCK):
             stop = min(n, begin + _BLOCK)
             for t in range(begin, stop):  # read while the threads align the block before
-                d = depth[t] if median is None else np.asarray(depth[t], np.float32) * unit
+                d = check_depth(depth[t], size, f"{name} frame {t}") * np.float32(unit)
                 window[t] = _images(rgb[t], d, region, nearest, f"{name} frame {t}",
                                     (scale, light_power))
             bar.update(stop - begin)

@@ -64,6 +64,9 @@ class PoseGraphConfig:
                              "positive")
         if self.velocity_weight < 0:
             raise InputError("pose-graph velocity_weight must be >= 0 (0 = off)")
+        if not isinstance(self.max_iterations, int) or self.max_iterations < 1:
+            raise InputError(f"pose-graph max_iterations must be a positive integer, got "
+                             f"{self.max_iterations!r}")
         if self.window and self.window <= 2 * max(self.skips):
             raise InputError(f"pose-graph window must be 0 (batch) or more than twice the "
                              f"largest skip ({2 * max(self.skips)}), got {self.window}")
@@ -83,6 +86,10 @@ class PoseGraphResult:
     """Graph error (sum over windows) after optimisation."""
     iterations: int
     """Levenberg-Marquardt iterations, summed over windows."""
+    capped: list[int]
+    """First frame of each window (0 alone for a batch optimisation) whose Levenberg-Marquardt
+    stopped at max_iterations rather than by converging: its poses are improved on the chain
+    but may be smoothed less than the graph allows."""
     seconds: float
     """Wall time of building and optimising the graph."""
 
@@ -103,10 +110,11 @@ def smooth_trajectory(relative: dict[int, np.ndarray], config: PoseGraphConfig,
     graph = _Graph(measured, config, sigmas)
     if config.window == 0:
         poses, initial, final, iterations = graph.optimise(range(count), {}, chained, name)
+        capped = [0] if iterations >= config.max_iterations else []
     else:
-        poses, initial, final, iterations = graph.windowed(count, chained, name)
+        poses, initial, final, iterations, capped = graph.windowed(count, chained, name)
     poses = np.linalg.inv(poses[0]) @ poses  # the prior holds it to 1e-6: make it exact
-    return PoseGraphResult(poses, chained, initial, final, iterations,
+    return PoseGraphResult(poses, chained, initial, final, iterations, capped,
                            time.perf_counter() - start)
 
 
@@ -207,18 +215,21 @@ class _Graph:
         return poses, before, after, optimizer.iterations()
 
     def windowed(self, count: int, initial: np.ndarray, name: str
-                 ) -> tuple[np.ndarray, float, float, int]:
+                 ) -> tuple[np.ndarray, float, float, int, list[int]]:
         """Optimise windows in order; each commits all but its last max(skips) frames, which
-        the next window re-estimates with the committed frames before them held fixed."""
+        the next window re-estimates with the committed frames before them held fixed. Also
+        returns the first frames of the windows stopped at max_iterations."""
         lag = max(self.config.skips)
         guess = initial.copy()
         poses = np.empty_like(initial)
-        done, before, after, iterations = 0, 0.0, 0.0, 0
+        done, before, after, iterations, capped = 0, 0.0, 0.0, 0, []
         while done < count:
             stop = min(done + self.config.window - (lag if done else 0), count)
             fixed = {t: _pose(poses[t]) for t in range(max(done - lag, 0), done)}
             window, e0, e1, steps = self.optimise(range(done, stop), fixed, guess, name)
             before, after, iterations = before + e0, after + e1, iterations + steps
+            if steps >= self.config.max_iterations:
+                capped.append(done)
             guess[done:stop] = window
             # The next window's new frames: the chain continued from this window's last pose.
             ahead = slice(stop, stop + self.config.window)
@@ -226,7 +237,7 @@ class _Graph:
             commit = stop if stop == count else stop - lag
             poses[done:commit] = window[:commit - done]
             done = commit
-        return poses, before, after, iterations
+        return poses, before, after, iterations, capped
 
 
 def check_converged(poses: np.ndarray, initial_error: float, final_error: float,

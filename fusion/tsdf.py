@@ -18,7 +18,7 @@ import open3d as o3d
 import open3d.core as o3c
 from tqdm import tqdm
 
-from hybrid.types import InputError, check_poses
+from hybrid.types import InputError, check_depth, check_poses
 
 log = logging.getLogger(__name__)
 
@@ -112,7 +112,7 @@ class TsdfVolume:
         pose (4, 4) camera-to-world."""
         what = f"{self.name} frame {self.frames}"
         self.frames += 1
-        depth = _check_depth(depth, self.shape, what)
+        depth = check_depth(depth, self.shape, what)
         self.shape = depth.shape
         if self.grid is None:
             self.with_color = rgb is not None
@@ -202,19 +202,6 @@ def _check_intrinsics(K: np.ndarray, name: str) -> np.ndarray:
         raise InputError(f"{name}: K must be a finite 3x3 intrinsic matrix with positive fx, fy "
                          f"(pixels of the depth maps), got {K.tolist()}")
     return K
-
-
-def _check_depth(depth: np.ndarray, shape: tuple[int, int] | None, what: str) -> np.ndarray:
-    depth = np.asarray(depth)
-    if depth.ndim != 2 or depth.size == 0 or (shape is not None and depth.shape != shape):
-        raise InputError(f"{what}: depth must be a non-empty (H, W) map"
-                         f"{'' if shape is None else f' of the first frame size {shape}'}, "
-                         f"got shape {depth.shape}")
-    depth = depth.astype(np.float32)
-    if not np.isfinite(depth).all() or (depth < 0).any():
-        raise InputError(f"{what}: depth has NaN, infinite or negative values; mark invalid "
-                         f"pixels with 0")
-    return depth
 
 
 def _check_rgb(rgb: np.ndarray, shape: tuple[int, int], what: str) -> np.ndarray:

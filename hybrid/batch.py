@@ -4,6 +4,8 @@ Writes out/<video name>/ per video (see hybrid.pipeline), out/<video name>/error
 video fails, and out/summary.csv (one row per video, rewritten atomically after each video;
 a rerun starts from the rows an earlier one left, so videos it has not reached yet keep theirs).
 A video whose report exists is skipped; an interrupted one resumes at its first missing stage.
+With several workers each video runs in a process of its own, so that one that dies fails
+only its own video.
 """
 
 from __future__ import annotations
@@ -14,7 +16,9 @@ import json
 import logging
 import os
 import traceback
-from concurrent.futures import ProcessPoolExecutor, as_completed
+from collections.abc import Callable
+from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor, as_completed
+from concurrent.futures.process import BrokenProcessPool
 from multiprocessing import get_context
 from pathlib import Path
 
@@ -64,23 +68,42 @@ def run_batch(folder: Path, out: Path, config: RunConfig | None = None, workers:
     else:
         del models  # each worker loads its own
         threads = max(1, (os.cpu_count() or 1) // workers)
-        # spawned, not forked: a forked worker cannot use CUDA
-        with ProcessPoolExecutor(workers, mp_context=get_context("spawn"),
-                                 initializer=_start_worker,
-                                 initargs=(threads, logging.getLogger().level)) as pool:
-            futures = {pool.submit(_run_one, v, out / v.name, config, None, device): v
+        with ThreadPoolExecutor(workers) as pool:
+            futures = {pool.submit(_run_in_process, v, out / v.name, config, device, threads): v
                        for v in videos}
-            for future in as_completed(futures):
-                video = futures[future]
-                try:
-                    rows[video.name] = future.result()
-                except Exception as err:  # a worker that died (e.g. out of memory)
-                    rows[video.name] = {"video": str(video), "status": "failed",
-                                        "error": f"worker died: {type(err).__name__}: {err}"}
-                _write_summary(out, videos, rows)
-                bar.update(1)
+            try:
+                for future in as_completed(futures):
+                    rows[futures[future].name] = future.result()
+                    _write_summary(out, videos, rows)
+                    bar.update(1)
+            except BaseException:  # e.g. Ctrl-C: start no more videos
+                pool.shutdown(wait=False, cancel_futures=True)
+                raise
     bar.close()
     return out / SUMMARY
+
+
+def _run_in_process(video: Path, work: Path, config: RunConfig, device: torch.device | str,
+                    threads: int) -> dict:
+    """`_run_one` in a process of its own, so that a process that dies (e.g. killed for its
+    memory) fails its own video only: the row says so, and work/error.txt."""
+    try:
+        return in_own_process(_run_one, video, work, config, None, device, threads=threads)
+    except BrokenProcessPool as err:
+        work.mkdir(parents=True, exist_ok=True)
+        message = (f"the process running this video died ({err}); it may have run out of "
+                   f"memory: run it alone, or with fewer --workers")
+        W.write_text(work / W.ERROR, message + "\n")
+        return {"video": str(video), "status": "failed", "error": message}
+
+
+def in_own_process(function: Callable, *args, threads: int = 1):
+    """function(*args) in a fresh spawned process (not forked: a forked one cannot use CUDA)
+    with `threads` torch threads and this process's logging level; BrokenProcessPool if that
+    process dies."""
+    with ProcessPoolExecutor(1, mp_context=get_context("spawn"), initializer=_start_worker,
+                             initargs=(threads, logging.getLogger().level)) as pool:
+        return pool.submit(function, *args).result()
 
 
 def _start_worker(threads: int, log_level: int) -> None:

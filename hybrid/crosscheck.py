@@ -12,6 +12,7 @@ from __future__ import annotations
 import csv
 import io
 import json
+import math
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -20,6 +21,7 @@ import numpy as np
 from hybrid import workdir as W
 from hybrid.coverage import DEFAULT_PAIR_CM, pair_key
 from hybrid.ingest import Ingested
+from hybrid.types import InputError
 from learned.coverage_eval import CLASS_EDGES, three_class
 
 CLASS_NAMES = ("mostly not covered", "partial", "mostly covered")
@@ -122,6 +124,12 @@ def cross_check(out: Path, ingested: Ingested, config) -> CrossCheck:
         reasons = {int(k): v for k, v in saved.get("errors", {}).items()}
     elif (out / W.GEOMETRIC_ERROR).is_file():
         error = (out / W.GEOMETRIC_ERROR).read_text().strip()
+    for name, values in ((W.LEARNED, {s["index"]: s["coverage"] for s in learned}),
+                         (W.GEOMETRIC, geometric)):
+        if bad := sorted(i for i, v in values.items() if v is not None and not math.isfinite(v)):
+            raise InputError(f"{out / name}: segments {bad} have a coverage that is not a "
+                             f"number; the stage that wrote it went wrong: delete the file and "
+                             f"run again")
     usable = ingested.usable
     rows = []
     for segment in learned:

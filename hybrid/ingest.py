@@ -29,7 +29,7 @@ from tqdm import tqdm
 from hybrid.npyio import NpyWriter
 from hybrid.types import InputError
 from hybrid.workdir import write_json
-from learned.frames import VIDEO_SUFFIXES, Crop, check_fps, detect_region, image_files
+from learned.frames import VIDEO_SUFFIXES, Crop, check_fps, detect_region, image_files, read_image
 
 DARK_GREY = 30
 """Mean grey level (0-255) under which a frame is too dark."""
@@ -81,6 +81,8 @@ def ingest(path: Path, size: tuple[int, int], frames_out: Path, region: np.ndarr
            fps: float | None = None, progress: bool = False) -> tuple[Ingested, np.ndarray]:
     """Write frames_out (N, H, W, 3) uint8 and return the record and the region at (H, W)."""
     source = _open(Path(path), fps)
+    if source.region is not None and region is not None:
+        raise InputError(f"{path}: a simulated procedure has no border; drop the mask")
     first_pass = tqdm(source.open(), total=source.count_hint or None, unit="frame",
                       desc=f"scan {Path(path).name}", disable=not progress)
     brightest, count, shape = None, 0, None
@@ -119,23 +121,33 @@ def ingest(path: Path, size: tuple[int, int], frames_out: Path, region: np.ndarr
     # region meets the frame's edge: keep it out.
     sharpness_region = cv2.erode(small_region.astype(np.uint8), np.ones((5, 5), np.uint8),
                                  borderType=cv2.BORDER_CONSTANT, borderValue=0).astype(bool)
+    if not sharpness_region.any():
+        raise InputError(f"{path}: the image region is {int(small_region.sum())} pixels at the "
+                         f"networks' size {size}, too thin to judge the frames by; give a mask "
+                         f"(--mask) that covers the image, filled")
     stack = NpyWriter(frames_out, (count, height, width, 3), np.uint8)
     dark, bright, blurred = [], [], []
-    for index, frame in enumerate(tqdm(source.open(), total=count, unit="frame",
-                                       desc=f"ingest {Path(path).name}", disable=not progress)):
-        if index == count:
-            break
-        small = fit(frame, cv2.INTER_AREA)
-        stack[index:index + 1] = small[None]
-        grey = cv2.cvtColor(small, cv2.COLOR_RGB2GRAY)
-        inside = grey[small_region]
-        dark.append(bool(inside.mean() < DARK_GREY))
-        bright.append(bool((inside > 245).mean() > OVEREXPOSED_FRACTION))
-        blurred.append(bool(cv2.Laplacian(grey, cv2.CV_64F)[sharpness_region].var()
-                            < BLUR_VARIANCE))
-    if len(dark) != count:
-        raise InputError(f"{path}: the second reading gave {len(dark)} frames, the first {count}; "
-                         f"the file changed or decodes unreliably: copy or re-encode it")
+    try:
+        for index, frame in enumerate(tqdm(source.open(), total=count, unit="frame",
+                                           desc=f"ingest {Path(path).name}",
+                                           disable=not progress)):
+            if index == count:
+                break
+            small = fit(frame, cv2.INTER_AREA)
+            stack[index:index + 1] = small[None]
+            grey = cv2.cvtColor(small, cv2.COLOR_RGB2GRAY)
+            inside = grey[small_region]
+            dark.append(bool(inside.mean() < DARK_GREY))
+            bright.append(bool((inside > 245).mean() > OVEREXPOSED_FRACTION))
+            blurred.append(bool(cv2.Laplacian(grey, cv2.CV_64F)[sharpness_region].var()
+                                < BLUR_VARIANCE))
+        if len(dark) != count:
+            raise InputError(f"{path}: the second reading gave {len(dark)} frames, the first "
+                             f"{count}; the file changed or decodes unreliably: copy or "
+                             f"re-encode it")
+    except BaseException:
+        stack.discard()
+        raise
     stack.close()
     warning = None
     if source.count_hint > count:
@@ -156,14 +168,16 @@ def _open(path: Path, fps: float | None) -> _Source:
     if path.is_dir() and (path / "rgb").is_dir() and (path / "camera.json").is_file():
         from hybrid.dataset import Procedure
 
+        if fps is not None:
+            raise InputError(f"{path}: a simulated procedure has its own frame rate; drop --fps")
         proc = Procedure.open(path)
         frames = range(proc.num_frames)
         region = np.ones((proc.camera.height, proc.camera.width), dtype=bool)
-        return _Source(str(path), fps or proc.camera.fps, lambda: map(proc.rgb, frames),
+        return _Source(str(path), proc.camera.fps, lambda: map(proc.rgb, frames),
                        proc.num_frames, region)
     if path.is_dir():
         files = image_files(path)
-        return _Source(str(path), fps or 30.0, lambda: map(_read_image, files), len(files))
+        return _Source(str(path), fps or 30.0, lambda: map(read_image, files), len(files))
     if path.suffix.lower() not in VIDEO_SUFFIXES:
         raise InputError(f"{path}: not a video ({', '.join(sorted(VIDEO_SUFFIXES))}), a folder "
                          f"of images or a simulated procedure")
@@ -190,8 +204,3 @@ def _decode(path: Path) -> Iterator[np.ndarray]:
         capture.release()
 
 
-def _read_image(path: Path) -> np.ndarray:
-    image = cv2.imread(str(path), cv2.IMREAD_COLOR)
-    if image is None:
-        raise InputError(f"cannot read image {path}")
-    return cv2.cvtColor(image, cv2.COLOR_BGR2RGB)

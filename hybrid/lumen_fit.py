@@ -4,7 +4,8 @@ Reads camera-to-world poses (the smoothed trajectory) and surface points (TSDF m
 back-projected depth) in one unit, and returns a `FittedLumen` parametrised by arc length.
 
 1. Stations: the camera centres, smoothed over time, resampled every `spacing` along their
-   path; a station closer than spacing/2 to an earlier one is a return visit and is dropped.
+   path; a station closer than spacing/2 to an earlier one, or closer than about a radius to
+   one that the path left more than twice as far back, is a return visit and is dropped.
    A camera that pushes in and then withdraws over the same stretch leaves them out of order
    in time: the runs of stations that follow one another are joined end to end by the
    shortest links between their ends (`_ordered`). The video is taken to be a withdrawal
@@ -44,6 +45,11 @@ from scipy.spatial import cKDTree
 
 from hybrid.types import InputError, check_poses
 from hybrid.workdir import write_json
+
+_REVISIT = 0.5
+"""A camera back within this distance (× r0, about the lumen's radius) of a station it left
+more than twice as far back along its path is on a return visit, in the same stretch of
+lumen, though to the side of its earlier pass (`_stations`)."""
 
 
 @dataclass(frozen=True)
@@ -144,7 +150,7 @@ def fit_lumen(poses: np.ndarray, surface: np.ndarray, fps: float = 30.0,
     if config.thinning > 0:
         surface = _thinned(surface, config.thinning * r0)
     spacing = config.spacing * r0
-    stations, follows = _stations(centres, spacing)
+    stations, follows = _stations(centres, spacing, _REVISIT * r0)
     path = _ordered(stations, follows, spacing, centres, config.withdrawal)
     if len(path) < 4:
         raise InputError(f"{name}: the camera moves {_length(centres):.3g} units, less than a "
@@ -205,20 +211,30 @@ def _thinned(points: np.ndarray, cell: float) -> np.ndarray:
     return _sorted(np.asarray(thin.points))
 
 
-def _stations(centres: np.ndarray, spacing: float) -> tuple[np.ndarray, np.ndarray]:
+def _stations(centres: np.ndarray, spacing: float, revisit: float
+              ) -> tuple[np.ndarray, np.ndarray]:
     """Points every `spacing` along the path, first visits only, and whether each follows the
-    one kept before it along the path (False after a return visit was skipped)."""
+    one kept before it along the path (False after a return visit was skipped). A point is a
+    return visit if a kept station lies within spacing/2 of it, or within `revisit` of it and
+    more than twice as far back along the path, and a spacing more (the camera went away and
+    came back beside its earlier pass; along one pass, even round a bend, the path back to a
+    station is about as long as the straight line)."""
     steps = np.linalg.norm(np.diff(centres, axis=0), axis=1)
     ell = np.concatenate([[0.0], np.cumsum(steps)])
     at = np.arange(0.0, ell[-1], spacing)
     samples = np.stack([np.interp(at, ell, centres[:, k]) for k in range(3)], axis=1)
     kept: list[np.ndarray] = []
+    kept_at: list[float] = []
     follows: list[bool] = []
     previous_kept = False
-    for point in samples:
-        new = not kept or np.linalg.norm(np.asarray(kept) - point, axis=1).min() >= 0.5 * spacing
+    for point, here in zip(samples, at, strict=True):
+        distance = np.linalg.norm(np.asarray(kept) - point, axis=1) if kept else np.empty(0)
+        behind = here - np.asarray(kept_at)
+        new = not ((distance < 0.5 * spacing)
+                   | ((distance < revisit) & (behind > 2 * distance + spacing))).any()
         if new:
             kept.append(point)
+            kept_at.append(here)
             follows.append(previous_kept)
         previous_kept = new
     return np.asarray(kept), np.asarray(follows, bool)

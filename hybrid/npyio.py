@@ -73,6 +73,11 @@ class NpyWriter:
         self.handle.write(np.ascontiguousarray(rows, dtype=self.dtype).tobytes())
         self.written = stop
 
+    def discard(self) -> None:
+        """Close and delete the temporary file (the writing failed)."""
+        self.handle.close()
+        self.tmp.unlink(missing_ok=True)
+
     def close(self) -> Path:
         self.handle.close()
         if self.written != self.shape[0]:

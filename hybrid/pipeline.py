@@ -253,9 +253,12 @@ class _Run:
                 "fitness_p5_median": {g: _percentiles(f, (5, 50))
                                       for g, f in refined.fitness.items()}})
         result = smooth_trajectory(relative, self.config.posegraph, name=str(self.source))
+        W.write_json(self.path(W.POSEGRAPH), {
+            "initial_error": result.initial_error, "final_error": result.final_error,
+            "iterations": result.iterations, "max_iterations": self.config.posegraph.max_iterations,
+            "capped_windows_first_frames": result.capped})
         for name, poses in ((W.POSES_RAW, result.chained), (W.POSES, result.poses)):
-            np.save(self.path(name + ".partial.npy"), poses)
-            self.path(name + ".partial.npy").replace(self.path(name))
+            W.write_npy(self.path(name), poses)
 
     def reconstruction(self) -> None:
         frames = self.frames()
@@ -440,9 +443,9 @@ def run_video(source: Path, out: Path, config: RunConfig = RunConfig(),
 
     Raises InputError for bad input; a geometric-branch failure is recorded, not raised.
     Warnings (results written but incomplete): frames that did not decode, a geometric branch
-    that could not run, frame pairs the RGB-D odometry could not align. Notes: trailing frames
-    that do not fill a segment get no verdict; for networks that read a self-calibrated field
-    of view, whether they had one.
+    that could not run, frame pairs the RGB-D odometry could not align, a pose graph stopped at
+    its iteration cap. Notes: trailing frames that do not fill a segment get no verdict; for
+    networks that read a self-calibrated field of view, whether they had one.
     """
     source, out = Path(source), Path(out)
     models = models or Models.load(config)
@@ -470,8 +473,8 @@ def run_video(source: Path, out: Path, config: RunConfig = RunConfig(),
             try:
                 stage()
             except Exception as err:  # the geometric branch's failure must not stop the video
-                if name not in GEOMETRIC_STAGES:
-                    raise
+                if name not in GEOMETRIC_STAGES or isinstance(err, MemoryError | OSError):
+                    raise  # ... but a lack of memory or disk is no verdict on it: retried
                 kind = "" if isinstance(err, InputError) else f"{type(err).__name__}: "
                 W.write_text(geometric_error, f"{name}: {kind}{err}\n")
             finally:
@@ -496,6 +499,13 @@ def run_video(source: Path, out: Path, config: RunConfig = RunConfig(),
         if any(kept.values()):
             warnings.append(f"RGB-D odometry could not align {sum(kept.values())} frame pairs "
                             f"(per gap: {kept}); they keep the network's relative pose")
+    if (out / W.POSEGRAPH).is_file():
+        record = json.loads((out / W.POSEGRAPH).read_text())
+        if capped := record["capped_windows_first_frames"]:
+            warnings.append(f"the pose graph stopped at its cap of {record['max_iterations']} "
+                            f"iterations in {len(capped)} window(s) (first frames {capped[:10]}) "
+                            f"before converging; those poses are less smoothed than the graph "
+                            f"allows: raise PoseGraphConfig.max_iterations (RunConfig.posegraph)")
     dropped = run.ingested.frames % run.segment_frames
     if dropped:
         echo(f"note: the last {dropped} frames ({dropped / run.ingested.fps:.1f} s) do not fill "

@@ -97,6 +97,21 @@ def check_poses(poses: np.ndarray, name: str = "poses") -> np.ndarray:
     return poses
 
 
+def check_depth(depth: np.ndarray, shape: tuple[int, int] | None, what: str) -> np.ndarray:
+    """A non-empty (H, W) depth map (of `shape` if given) as float32, finite and not negative
+    (0 marks an invalid pixel), or an InputError naming `what`."""
+    depth = np.asarray(depth)
+    if depth.ndim != 2 or depth.size == 0 or (shape is not None and depth.shape != shape):
+        raise InputError(f"{what}: depth must be a non-empty (H, W) map"
+                         f"{'' if shape is None else f' of the first frame size {shape}'}, "
+                         f"got shape {depth.shape}")
+    depth = depth.astype(np.float32)
+    if not np.isfinite(depth).all() or (depth < 0).any():
+        raise InputError(f"{what}: depth has NaN, infinite or negative values; mark invalid "
+                         f"pixels with 0")
+    return depth
+
+
 def chain_poses(relative: np.ndarray) -> np.ndarray:
     """(N, 4, 4) camera-to-world poses, the first the identity, from (N-1, 4, 4) relative poses
     (relative[t] maps camera t's points into camera t+1): P[t+1] = P[t] · inverse(relative[t])."""

@@ -29,6 +29,9 @@ ODOMETRY = "odometry.json"
 """Per gap, how many relative poses RGB-D odometry could not refine (kept as inferred), and the
 5th percentile and median of the refined pairs' fitness (fraction of pixels that found a
 correspondence: about 1 between adjacent video frames)."""
+POSEGRAPH = "posegraph.json"
+"""How the pose graph's optimisation went: its error before and after, its iterations, and the
+windows whose optimisation stopped at the iteration cap rather than by converging."""
 POSES_RAW = "poses_raw.npy"
 """(N, 4, 4) camera-to-world poses chained from the consecutive relative poses the pose graph
 reads (refined by RGB-D odometry unless it is off)."""
@@ -72,6 +75,17 @@ def write_text(path: Path, text: str) -> Path:
 
 def write_json(path: Path, data) -> Path:
     return write_text(path, json.dumps(data, indent=1) + "\n")
+
+
+def write_npy(path: Path, array) -> Path:
+    """Write an array as .npy atomically."""
+    import numpy as np
+
+    path = Path(path)
+    tmp = path.with_name(path.name + ".partial.npy")
+    np.save(tmp, array)
+    os.replace(tmp, path)
+    return path
 
 
 def write_png(path: Path, image) -> Path:

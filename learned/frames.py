@@ -192,18 +192,25 @@ def _simulated(path: Path, size: tuple[int, int]) -> FrameSequence:
                          poses=proc.poses)
 
 
+def read_image(path: Path) -> np.ndarray:
+    """An image file as RGB uint8 (grey, 16-bit and alpha images converted)."""
+    image = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    if image is None:
+        raise InputError(f"cannot read image {path}")
+    return cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
+
+
 def _image_folder(path: Path, size: tuple[int, int], region: np.ndarray | None, fps: float
                   ) -> FrameSequence:
     files = image_files(path)
+    shape = read_image(files[0]).shape
 
     def load(index: int) -> np.ndarray:
-        image = cv2.imread(str(files[index]), cv2.IMREAD_UNCHANGED)
-        if image is None:
-            raise InputError(f"cannot read image {files[index]}")
-        if image.ndim != 3 or image.shape[2] != 3:
-            raise InputError(f"{files[index]}: expected a 3-channel colour image, got shape "
-                             f"{image.shape}")
-        return cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
+        image = read_image(files[index])
+        if image.shape != shape:
+            raise InputError(f"{path}: image {files[index].name} is {image.shape}, the first "
+                             f"({files[0].name}) {shape}; the frames of a video share one size")
+        return image
 
     return FrameSequence(str(path), fps, size, load, len(files), region=region)
 

@@ -8,21 +8,22 @@
     poses.npy              (N, 4, 4) camera-to-world poses chained from them (first = identity)
     intrinsics.json        one K for the whole input, in the input's own pixels, with its spread:
                            the intrinsics head's, or fusion.self_calibration's (`source`)
-Depth and translation share one unknown scale.
+Depth and translation share one unknown scale. Each file is written whole or not at all, the
+depth maps into depth.partial/, which replaces depth/ when every map is written.
 """
 
 from __future__ import annotations
 
-import json
+import shutil
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Protocol
 
-import cv2
 import numpy as np
 import torch
 from tqdm import tqdm
 
+from hybrid import workdir as W
 from hybrid.types import Camera, InputError, chain_poses
 from learned.device import device_of
 from learned.frames import Crop, FrameSequence
@@ -183,11 +184,15 @@ def infer_to_folder(model: DepthModel, seq: FrameSequence, out: Path, progress: 
     """Infer and write the files listed in the module docstring, the depth maps batch by
     batch; intrinsics.json gives `calibration`'s K where one is given and has one."""
     out = Path(out)
-    result = infer_sequence(model, seq, progress=progress, depth_out=DepthFiles(out / "depth"))
-    cv2.imwrite(str(out / "region.png"), seq.region.astype(np.uint8) * 255)
-    np.save(out / "relative_poses.npy", result.relative[1])
-    np.save(out / "poses.npy", result.poses)
+    partial = out / "depth.partial"  # replaces depth/ when whole: no maps of an earlier run
+    shutil.rmtree(partial, ignore_errors=True)
+    result = infer_sequence(model, seq, progress=progress, depth_out=DepthFiles(partial))
     intrinsics = aggregate_intrinsics(result.K_pairs, seq.size, seq.crop, seq.fps)
     if calibration is not None:
         intrinsics = self_calibrated_intrinsics(intrinsics, calibration, seq.crop)
-    (out / "intrinsics.json").write_text(json.dumps(intrinsics, indent=1) + "\n")
+    shutil.rmtree(out / "depth", ignore_errors=True)
+    partial.rename(out / "depth")
+    W.write_png(out / "region.png", seq.region.astype(np.uint8) * 255)
+    W.write_npy(out / "relative_poses.npy", result.relative[1])
+    W.write_npy(out / "poses.npy", result.poses)
+    W.write_json(out / "intrinsics.json", intrinsics)  # last: it marks the folder complete

@@ -178,6 +178,24 @@ def test_lumen_fit_follows_the_tube_when_the_camera_goes_back_over_its_path(dept
     assert ell + z == pytest.approx(np.full_like(z, (ell + z).mean()), abs=0.1)
 
 
+@pytest.mark.parametrize("side", [0.6, 1.0])
+def test_lumen_fit_follows_the_tube_when_the_camera_comes_back_beside_its_path(side):
+    """The 6-cm push-in, then the withdrawal `side` cm to one side of it in the 2-cm tube,
+    whose wall is seen from 1 to 22 cm: the stations of the way back are return visits though
+    half a radius away, and the centreline does not fold back (it did for both sides when
+    only stations a quarter of a spacing away were taken for return visits)."""
+    z = np.concatenate([np.linspace(10, 16, 150), np.linspace(16, 2, 450)])
+    poses = np.repeat(np.eye(4)[None], len(z), axis=0)
+    poses[:, 2, 3] = z
+    poses[:, 0, 3] = np.concatenate([np.full(150, 0.3), np.linspace(0.3, 0.3 - side, 30),
+                                     np.full(420, 0.3 - side)])
+    tube = straight_tube()
+    lumen = fit_lumen(poses, tube[(tube[:, 2] > 1) & (tube[:, 2] < 22)])
+    assert (np.diff(lumen.points[:, 2]) > 0).all()
+    ell, _ = Lumen(lumen.points).project(poses[:, :3, 3])  # a withdrawal: ℓ = z + constant
+    assert ell - z == pytest.approx(np.full_like(z, (ell - z).mean()), abs=0.25 * 2.0)
+
+
 def test_a_withdrawal_after_a_push_in_reads_its_coverage_on_the_fitted_lumen():
     """The 6-cm push-in above, then the withdrawal from 16 to 2 cm: its segment's coverage on
     the lumen fitted to the whole window is that on the true axis (a folded lumen gave some
@@ -207,13 +225,14 @@ def test_stations_of_a_path_that_crosses_itself_stay_in_order():
     path = np.concatenate([np.linspace([0, 0, 0], [20, 0, 0], 400),
                            np.c_[20 + 5 * np.sin(turn), 5 - 5 * np.cos(turn), 0 * turn],
                            np.linspace([20, 10, 0], [0.3, -9.7, 0], 600)])
-    stations, follows = _stations(path, 1.0)
+    stations, follows = _stations(path, 1.0, 2.0)  # spacing and revisit as fit_lumen's
     assert not follows.all()  # the crossing skipped some
     ordered = _ordered(stations, follows, 1.0, path, withdrawal=False)
     assert len(ordered) == len(stations)
     assert np.abs(ordered[0]).max() < 1e-9  # an insertion: ℓ grows from where it started
-    # no jump but over the station dropped at the crossing (two spacings)
-    assert np.linalg.norm(np.diff(ordered, axis=0), axis=1).max() < 2.5
+    # no jump but over the stations dropped at the crossing: those of the second arm within
+    # 2 of the first, which it crosses at 45°, 4√2 = 5.7 of its length
+    assert np.linalg.norm(np.diff(ordered, axis=0), axis=1).max() < 4 * np.sqrt(2) + 1
 
 
 def test_lumen_fit_is_unit_free():

@@ -187,6 +187,26 @@ def test_depth_runs_on_a_folder_of_images(tmp_path, tiny_checkpoint):
     assert poses.shape == (3, 4, 4) and np.array_equal(poses[0], np.eye(4))
     intrinsics = json.loads((out / "intrinsics.json").read_text())
     assert (intrinsics["width"], intrinsics["height"], intrinsics["pairs"]) == (120, 100, 2)
+    assert sorted(p.name for p in out.iterdir()) == [
+        "depth", "intrinsics.json", "poses.npy", "region.png", "relative_poses.npy"]
+
+
+def test_depth_into_a_folder_of_an_earlier_run_leaves_none_of_its_maps(tmp_path,
+                                                                       tiny_checkpoint):
+    """A longer earlier run's maps, and an interrupted one's, do not stay beside the new ones
+    (the folder would look like a run of more frames)."""
+    out = tmp_path / "out"
+    run_depth(write_images(tmp_path / "long", [disc_frame(seed=s) for s in range(5)]), out,
+              tiny_checkpoint)
+    (out / "depth.partial").mkdir()
+    (out / "depth.partial" / "000007.npy").write_bytes(b"interrupted")
+    result = run_depth(write_images(tmp_path / "short", [disc_frame(seed=s) for s in range(3)]),
+                       out, tiny_checkpoint)
+    assert result.exit_code == 0, result.output
+    assert sorted(p.name for p in (out / "depth").iterdir()) == [
+        "000000.npy", "000001.npy", "000002.npy"]
+    assert not (out / "depth.partial").exists()
+    assert np.load(out / "poses.npy").shape == (3, 4, 4)
 
 
 def test_depth_written_frame_by_frame_equals_the_depth_in_memory(tmp_path, tiny_checkpoint):
@@ -259,13 +279,27 @@ def test_depth_on_a_folder_with_a_single_image(tmp_path, tiny_checkpoint):
     assert "2 frames" in message
 
 
-def test_depth_on_rgba_images(tmp_path, tiny_checkpoint):
-    rgba = [np.dstack([disc_frame(seed=s), np.full((100, 120), 255, np.uint8)])
-            for s in range(3)]
-    folder = write_images(tmp_path / "with_alpha", rgba)
-    message = assert_clean_error(run_depth(folder, tmp_path / "out", tiny_checkpoint),
-                                 "frame_000.png")
-    assert "3-channel" in message
+def test_image_folders_are_read_as_8_bit_colour_of_one_size(tmp_path):
+    """Images with an alpha channel and 16-bit images give the frames their colour gives (as
+    `c2d2 run` reads them; 16-bit ones were read as they were, up to 65535), and an image of
+    another size is refused by name (it was cut with the others' box)."""
+    frames = [disc_frame(seed=s) for s in range(3)]
+    plain = open_sequence(write_images(tmp_path / "plain", frames), (64, 96))
+    alpha = write_images(tmp_path / "alpha", [np.dstack([f, np.full((100, 120), 255, np.uint8)])
+                                              for f in frames])
+    deep = tmp_path / "deep"
+    deep.mkdir()
+    for i, frame in enumerate(frames):
+        cv2.imwrite(str(deep / f"frame_{i:03d}.png"),
+                    cv2.cvtColor(frame, cv2.COLOR_RGB2BGR).astype(np.uint16) * 257)
+    for folder in (alpha, deep):
+        seq = open_sequence(folder, (64, 96))
+        for i in range(3):
+            assert np.array_equal(seq.frame(i), plain.frame(i)), (folder, i)
+    mixed = write_images(tmp_path / "mixed", frames)
+    cv2.imwrite(str(mixed / "frame_001.png"), cv2.resize(frames[1], (60, 50))[..., ::-1])
+    with pytest.raises(InputError, match=r"image frame_001.png is \(50, 60, 3\), the first"):
+        open_sequence(mixed, (64, 96))
 
 
 def test_depth_with_a_mask_of_the_wrong_size(tmp_path, tiny_checkpoint):

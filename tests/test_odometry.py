@@ -169,6 +169,12 @@ def test_bad_input_is_refused(procedure):
         refine_relative_poses({1: nan}, depth, rgb, K)
     with pytest.raises(InputError, match="no valid"):
         refine_relative_poses(rel, [np.zeros_like(d) for d in depth], rgb, K)
+    holed = [d.copy() for d in depth]
+    holed[2][5, 7] = np.nan
+    with pytest.raises(InputError, match="frame 2: depth has NaN"):
+        refine_relative_poses(rel, holed, rgb, K)
+    with pytest.raises(InputError, match=r"frame 1: depth must be a non-empty \(H, W\) map of"):
+        refine_relative_poses(rel, [depth[0], depth[1][:-1], *depth[2:]], rgb, K)
     with pytest.raises(InputError, match="no relative poses"):
         refine_relative_poses({}, depth, rgb, K)
     with pytest.raises(InputError, match="positive integers"):

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import csv
 import json
+import os
 import re
 import shutil
 from dataclasses import replace
@@ -148,7 +149,7 @@ def test_run_writes_every_file_of_the_work_directory(pipeline_run, procedure):
     optional = {W.SELF_CALIBRATION}  # written only when asked for
     names = [value for key, value in vars(W).items() if key.isupper() and isinstance(value, str)
              and value not in failure_files | optional]
-    assert len(names) == 20
+    assert len(names) == 21
     missing = [name for name in names if not (out / name).exists()]
     assert not missing
     assert not any((out / name).exists() for name in failure_files | optional)
@@ -172,6 +173,10 @@ def test_run_writes_every_file_of_the_work_directory(pipeline_run, procedure):
     for p5, median in odometry["fitness_p5_median"].values():
         assert 0 < p5 <= median <= 1
     assert np.load(out / W.POSES).shape == (n, 4, 4)
+    graph = json.loads((out / W.POSEGRAPH).read_text())
+    assert graph["capped_windows_first_frames"] == []
+    assert 0 < graph["iterations"] < graph["max_iterations"]
+    assert graph["final_error"] < graph["initial_error"]
     ingested = Ingested.load(out / W.INGEST)
     assert (ingested.frames, ingested.fps, ingested.decode_warning) == (n, FPS, None)
     assert ingested.usable.all()  # simulated frames are neither dark, overexposed nor blurred
@@ -374,20 +379,63 @@ def test_a_segment_without_a_geometric_value_is_noted_with_its_reason(pipeline_r
     assert "No geometric value for segment 1" in (work / W.REPORT).read_text()
 
 
+def test_a_pose_graph_stopped_at_its_iteration_cap_is_a_warning(pipeline_run, procedure,
+                                                               tmp_path):
+    out, _ = pipeline_run
+    work = tmp_path / "work"
+    shutil.copytree(out, work)
+    record = json.loads((work / W.POSEGRAPH).read_text())
+    W.write_json(work / W.POSEGRAPH, {**record, "capped_windows_first_frames": [0]})
+    result = run_video(procedure.path, work, RunConfig(), progress=False, echo=lambda _: None)
+    assert result["warnings"] == [
+        f"the pose graph stopped at its cap of {record['max_iterations']} iterations in 1 "
+        f"window(s) (first frames [0]) before converging; those poses are less smoothed than "
+        f"the graph allows: raise PoseGraphConfig.max_iterations (RunConfig.posegraph)"]
+
+
+@pytest.mark.parametrize("error, recorded", [
+    (RuntimeError("no lumen"), True), (MemoryError(), False), (OSError(28, "disk full"), False)])
+def test_a_geometric_failure_is_recorded_unless_memory_or_disk_ran_out(
+        pipeline_run, procedure, tmp_path, monkeypatch, error, recorded):
+    """A geometric stage's error is the branch's verdict on the video (recorded, not retried,
+    the learned branch still reports); a lack of memory or disk is not: the run stops, and
+    nothing is recorded that would keep a rerun from trying again."""
+    import hybrid.pipeline as P
+
+    out, _ = pipeline_run
+    work = tmp_path / "work"
+    shutil.copytree(out, work)
+    (work / W.POSES).unlink()
+
+    def fails(*args, **kwargs):
+        raise error
+
+    monkeypatch.setattr(P, "smooth_trajectory", fails)
+    if recorded:
+        result = run_video(procedure.path, work, RunConfig(), progress=False, echo=print)
+        assert (work / W.GEOMETRIC_ERROR).read_text() == "posegraph: RuntimeError: no lumen\n"
+        assert result["warnings"] == ["geometric branch failed at posegraph: RuntimeError: "
+                                      "no lumen"]
+    else:
+        with pytest.raises(type(error)):
+            run_video(procedure.path, work, RunConfig(), progress=False, echo=print)
+        assert not (work / W.GEOMETRIC_ERROR).exists()
+
+
 def test_geometric_stages_repeat_exactly(pipeline_run, procedure, tmp_path):
     """Run again from the same depth, the pose graph, reconstruction and geometric coverage
     give the same bytes (the odometry and the lumen fit do not depend on thread timing)."""
     out, _ = pipeline_run
     work = tmp_path / "again"
     shutil.copytree(out, work)
-    for name in (W.ODOMETRY, W.POSES_RAW, W.POSES, W.MESH, W.LUMEN, W.RECONSTRUCTION,
+    for name in (W.ODOMETRY, W.POSEGRAPH, W.POSES_RAW, W.POSES, W.MESH, W.LUMEN, W.RECONSTRUCTION,
                  W.GEOMETRIC, W.COVERAGE_JSON, W.COVERAGE_CSV, W.REPORT):
         (work / name).unlink()
     shutil.rmtree(work / W.MAPS)
     result = runner.invoke(app, ["run", str(procedure.path), "--out", str(work)])
     assert result.exit_code == 0, result.output
     assert "posegraph: done before" not in result.stdout
-    for name in (W.POSES, W.LUMEN, W.GEOMETRIC, W.COVERAGE_CSV):
+    for name in (W.POSEGRAPH, W.POSES, W.LUMEN, W.GEOMETRIC, W.COVERAGE_CSV):
         assert (work / name).read_bytes() == (out / name).read_bytes(), name
 
 
@@ -660,6 +708,50 @@ def test_a_flat_image_inside_a_circular_border_reads_as_blurred(shape, given, tm
     assert record.blurred == [True, True, False, False]
 
 
+def test_ingest_refuses_a_frame_rate_or_mask_for_a_simulated_procedure(procedure, tmp_path):
+    """A simulated procedure has its own frame rate and no border (they were taken silently)."""
+    from hybrid.ingest import ingest
+
+    with pytest.raises(InputError, match="its own frame rate; drop --fps"):
+        ingest(procedure.path, (128, 160), tmp_path / "frames.npy", fps=FPS * 2)
+    mask = np.ones((procedure.camera.height, procedure.camera.width), bool)
+    with pytest.raises(InputError, match="has no border; drop the mask"):
+        ingest(procedure.path, (128, 160), tmp_path / "frames.npy", mask)
+
+
+def test_ingest_refuses_an_image_region_too_thin_to_judge_frames_by(frames, tmp_path):
+    """A mask that is an outline, not filled: no pixel to read blur from (every frame was
+    flagged neither dark nor blurred, from the mean of nothing)."""
+    from hybrid.ingest import ingest
+
+    video = write_video(tmp_path / "video.avi", frames[:20], FPS)
+    outline = np.zeros(frames[0].shape[:2], bool)
+    np.fill_diagonal(outline, True)
+    with pytest.raises(InputError, match="too thin to judge the frames by"):
+        ingest(video, (128, 160), tmp_path / "frames.npy", outline)
+
+
+def test_ingest_that_fails_halfway_leaves_no_partial_file(frames, tmp_path, monkeypatch):
+    import hybrid.ingest
+
+    folder = tmp_path / "images"
+    folder.mkdir()
+    for k in range(6):
+        cv2.imwrite(str(folder / f"{k}.png"), frames[k][..., ::-1])
+    read = hybrid.ingest.read_image
+    calls = iter(range(100))
+
+    def fails_in_the_second_pass(path: Path) -> np.ndarray:
+        if next(calls) == 6 + 3:
+            raise OSError(5, "input/output error", str(path))
+        return read(path)
+
+    monkeypatch.setattr(hybrid.ingest, "read_image", fails_in_the_second_pass)
+    with pytest.raises(OSError, match="input/output error"):
+        hybrid.ingest.ingest(folder, (128, 160), tmp_path / "frames.npy")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["images"]
+
+
 def read_summary(out: Path) -> dict[str, dict]:
     with (out / "summary.csv").open() as f:
         return {Path(row["video"]).name: row for row in csv.DictReader(f)}
@@ -686,6 +778,35 @@ def test_batch_with_two_workers_gives_what_one_gives(frames, tmp_path):
         # docs/pipeline.md).
         assert two["mean_learned"] == one["mean_learned"]
         assert two["mean_geometric"] == one["mean_geometric"]
+
+
+def test_a_worker_that_dies_fails_its_own_video_only(frames, tmp_path, monkeypatch):
+    """With two workers each video runs in a process of its own: one whose process dies (here
+    by os._exit, as when the kernel kills it for its memory) fails alone, the reason in its row
+    and error.txt, and the other finishes (in one shared pool of workers, every video not yet
+    finished failed with it)."""
+    import hybrid.batch as B
+
+    videos = tmp_path / "videos"
+    videos.mkdir()
+    for name in ("a.avi", "b.avi"):
+        write_video(videos / name, frames[:110], FPS)
+    real = B.in_own_process
+
+    def dies_on_b(function, video, *args, threads):
+        if video.name == "b.avi":
+            return real(os._exit, 137, threads=threads)
+        return real(function, video, *args, threads=threads)
+
+    monkeypatch.setattr(B, "in_own_process", dies_on_b)
+    out = tmp_path / "out"
+    result = runner.invoke(app, ["batch", str(videos), "--out", str(out), "--workers", "2"])
+    assert result.exit_code == 1, result.output
+    rows = read_summary(out)
+    assert (rows["a.avi"]["status"], rows["a.avi"]["segments"]) == ("done", "1")
+    assert rows["b.avi"]["status"] == "failed"
+    assert rows["b.avi"]["error"].startswith("the process running this video died")
+    assert "out of memory" in (out / "b.avi" / W.ERROR).read_text()
 
 
 def test_batch_resumes_after_a_kill_and_isolates_a_bad_file(frames, tmp_path, monkeypatch):
@@ -905,6 +1026,13 @@ def test_cross_check_by_hand(tmp_path):
     assert [row["geometric_error"] for row in saved][3:] == ["", "segment 4: too short"]
     saved = json.loads((tmp_path / "c.json").read_text())
     assert (saved["agreement"], saved["geometric_weight"]) == (0.5, 1.0)
+
+
+def test_cross_check_refuses_a_coverage_that_is_not_a_number(tmp_path):
+    """NaN would read as class 2, 'mostly covered', and never be deficient."""
+    ingested = hand_made_work_dir(tmp_path / "work", [0.85, np.nan, 0.25, 0.10, None])
+    with pytest.raises(InputError, match=r"geometric.json: segments \[1\] have a coverage"):
+        cross_check(tmp_path / "work", ingested, RunConfig())
 
 
 def test_cross_check_without_the_geometric_branch(tmp_path):

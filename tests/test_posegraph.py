@@ -108,6 +108,17 @@ def test_windows_cover_a_length_that_is_not_a_multiple_of_their_step():
     np.testing.assert_allclose(result.poses, truth, atol=1e-6)
 
 
+def test_an_optimisation_stopped_at_the_iteration_cap_is_reported():
+    relative = measured(helix(), 0.01, 0.1, outliers=3)
+    converged = smooth_trajectory(relative, NOISE)
+    assert converged.capped == [] and 1 < converged.iterations < NOISE.max_iterations
+    assert smooth_trajectory(relative, replace(NOISE, max_iterations=1)).capped == [0]
+    windowed = smooth_trajectory(relative, replace(NOISE, window=40, max_iterations=1))
+    # The first window commits 40 - 8 frames, the others 40 - 2 * 8 after the 8 re-estimated.
+    assert windowed.capped == [0, *range(32, 200, 24)]
+    assert smooth_trajectory(relative, replace(NOISE, window=40)).capped == []
+
+
 def test_skips_longer_than_the_video_are_ignored():
     truth = helix(6)
     relative = {g: r for g, r in measured(truth).items() if g < 6}
@@ -136,6 +147,8 @@ def test_bad_configs_are_refused():
         PoseGraphConfig(skips=(2, 4))
     with pytest.raises(InputError, match="twice the largest skip"):
         PoseGraphConfig(skips=SKIPS, window=16)
+    with pytest.raises(InputError, match="max_iterations must be a positive integer"):
+        PoseGraphConfig(max_iterations=0)
 
 
 def test_a_result_that_is_not_finite_or_got_worse_is_not_converged():
