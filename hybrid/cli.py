@@ -75,7 +75,7 @@ def main(verbose: Annotated[bool, typer.Option("--verbose", "-v", help="Log prog
 def simulate(
     out: Annotated[Path, typer.Option(help="Folder to write procedures into.")],
     procedures: Annotated[int, typer.Option(min=1, help="Number of procedures.")] = 1,
-    seed: Annotated[int, typer.Option(help="Random seed; same seed, same output.")] = 0,
+    seed: Annotated[int, typer.Option(min=0, help="Random seed; same seed, same output.")] = 0,
     preset: Annotated[str, typer.Option(help="Image size: fast (128x160) or paper (320x384).")
                       ] = "fast",
     style: Annotated[str, typer.Option(help="Appearance style: pink, dusk or nbi.")] = "pink",
@@ -86,7 +86,7 @@ def simulate(
     first_index: Annotated[int, typer.Option(help="Index of the first procedure.")] = 0,
     workers: Annotated[int, typer.Option(min=1, help="Procedures simulated in parallel.")] = 1,
     camera_seed: Annotated[int | None, typer.Option(
-        help="Give procedure i the camera that procedure i of this seed has with the same "
+        min=0, help="Give procedure i the camera that procedure i of this seed has with the same "
              "--preset and --length-cm (colon, withdrawal and texture stay --seed's), so that "
              "two styles can share their cameras.")] = None,
     frame_step: Annotated[int | None, typer.Option(
@@ -147,7 +147,7 @@ def coverage(
 @_reports_input_errors
 def demo(
     out: Annotated[Path, typer.Option(help="Folder for the demo's outputs.")] = Path("c2d2-demo"),
-    seed: Annotated[int, typer.Option(help="Random seed.")] = 0,
+    seed: Annotated[int, typer.Option(min=0, help="Random seed.")] = 0,
     length_cm: Annotated[float, typer.Option(help="Colon length in cm.")] = 50.0,
     max_frames: Annotated[int, typer.Option(min=300, help="Frames of the withdrawal (30 fps).")
                           ] = 1200,
@@ -280,9 +280,22 @@ def eval_pipeline(
                        coverage_checkpoint=_opt(coverage_checkpoint),
                        self_calibrate=self_calibrate)
     models = Models.load(config, pick_device(device))
-    procedures = [Procedure.open(p) for p in expand_inputs(data)]
+    paths = expand_inputs(data)
+    _each_once(paths)
+    procedures = [Procedure.open(p) for p in paths]
     summary = evaluate_pipeline(procedures, out, config, models, echo=typer.echo)
     typer.echo(json.dumps(summary["summary"], indent=1))
+
+
+def _each_once(paths: list[Path]) -> None:
+    """InputError if --data names a procedure twice (its segments would count twice)."""
+    from learned.train import input_name
+
+    names = [input_name(p) for p in paths]
+    if repeated := sorted({n for n in names if names.count(n) > 1}):
+        raise InputError(f"--data gives {', '.join(repeated)} more than once (a procedure "
+                         f"twice, or two whose folder and parent folder share names); give "
+                         f"each once")
 
 
 def _opt(path: Path | None) -> str | None:
@@ -345,9 +358,10 @@ def train_depth(
     val: Annotated[list[Path] | None, typer.Option(help="Simulated procedures for validation "
                                                    "metrics (their truth is used for nothing "
                                                    "else).")] = None,
-    steps: Annotated[int | None, typer.Option(help="Training steps (preset default).")] = None,
-    batch_size: Annotated[int | None, typer.Option(help="Triplets per step.")] = None,
-    seed: Annotated[int | None, typer.Option(help="Random seed.")] = None,
+    steps: Annotated[int | None, typer.Option(min=1, help="Training steps (preset default).")
+                     ] = None,
+    batch_size: Annotated[int | None, typer.Option(min=1, help="Triplets per step.")] = None,
+    seed: Annotated[int | None, typer.Option(min=0, help="Random seed.")] = None,
     init: Annotated[Path | None, typer.Option(
         help="Start a new run from this depth model's weights (fine-tuning, e.g. on your own "
              "endoscope's videos); the optimiser starts afresh.")] = None,
@@ -501,6 +515,8 @@ def eval_depth(
 
     if adapt_dir is not None and not adapt_steps:
         raise InputError("--adapt-dir keeps adapted models: give --adapt-steps too")
+    if out is not None and not out.parent.is_dir():
+        raise InputError(f"folder for --out does not exist: {out.parent}")
     _check_contrast(contrast, self_calibrate)
     checkpoint, device = checkpoint or _shipped_checkpoint(), pick_device(device)
     model = load_depth_model(checkpoint, device=device)
@@ -553,7 +569,7 @@ def train_coverage(
     folds: Annotated[int | None, typer.Option(help="Cross-validation folds by procedure "
                                               "(0: none; calibrate=true then calibrates "
                                               "nothing).")] = None,
-    seed: Annotated[int | None, typer.Option(help="Random seed.")] = None,
+    seed: Annotated[int | None, typer.Option(min=0, help="Random seed.")] = None,
     set_: Annotated[list[str] | None, typer.Option(
         "--set", help="Override a config field, e.g. --set input_depth=true (see "
         "learned/config.py CoverageConfig).")] = None,
@@ -609,7 +625,7 @@ def eval_coverage(
     from learned.coverage_nets import load_coverage_model
     from learned.coverage_train import evaluate, load_samples
     from learned.device import pick_device
-    from learned.train import expand_inputs, input_name
+    from learned.train import expand_inputs
     from learned.view import hidden_view
 
     model_path, device = model or _shipped_coverage(), pick_device(device)
@@ -620,11 +636,7 @@ def eval_coverage(
                          f"hidden")
     depth_checkpoint = depth_checkpoint or _shipped_checkpoint()
     net.check_depth(depth_checkpoint, str(model_path))
-    names = [input_name(p) for p in expand_inputs(data)]
-    if repeated := sorted({n for n in names if names.count(n) > 1}):
-        raise InputError(f"--data gives {', '.join(repeated)} more than once (a procedure "
-                         f"twice, or two whose folder and parent folder share names); give "
-                         f"each once")
+    _each_once(expand_inputs(data))
     samples = load_samples(data, net.config, depth_checkpoint, progress=True, device=device)
     if view_hidden:
         samples = [replace(s, view=hidden_view(len(s.view))) for s in samples]

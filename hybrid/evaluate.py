@@ -111,7 +111,8 @@ def evaluate_pipeline(procedures: list[Procedure], out: Path, config: RunConfig,
                              f"and segment length")
         for row, true in zip(table, truth, strict=True):
             rows.append({"procedure": str(proc.path), "segment": row["index"],
-                         "truth": float(true), "learned": row["learned"],
+                         "truth": float(true) if np.isfinite(true) else None,
+                         "learned": row["learned"],
                          "geometric": row["geometric"], "combined": row["coverage"],
                          "geometric_support": row.get("geometric_support")})
         echo(f"{proc.path}: truth {np.round(truth, 2).tolist()} learned "

@@ -18,6 +18,7 @@ from pathlib import Path
 
 import torch
 
+from hybrid import workdir as W
 from hybrid.types import InputError
 from learned.checkpoint import file_tag
 from learned.config import DepthConfig
@@ -65,6 +66,6 @@ def adapt_depth_model(checkpoint: Path, config: DepthConfig, seq: FrameSequence,
                          f"another output folder")
     config = adaptation_config(config, checkpoint, steps, seq)
     out.mkdir(parents=True, exist_ok=True)
-    previous.write_text(json.dumps(record) + "\n")
+    W.write_json(previous, record)
     train_depth([seq], out, config, progress=progress, device=device)
     return load_depth_model(out / WEIGHTS, device=device)

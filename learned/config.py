@@ -186,6 +186,9 @@ class DepthConfig:
             raise ValueError(f"coarse_levels={self.coarse_levels} needs a size divisible by "
                              f"{block} and at least {8 * block} pixels, got "
                              f"{self.height}x{self.width}")
+        if self.steps < 1 or self.batch_size < 1 or self.seed < 0:
+            raise ValueError(f"steps and batch_size must be >= 1 and seed >= 0, got "
+                             f"{self.steps}, {self.batch_size} and {self.seed}")
         if self.w_chain < 0 or self.chain_steps < 1:
             raise ValueError(f"w_chain must be >= 0 and chain_steps >= 1, got {self.w_chain} "
                              f"and {self.chain_steps}")
@@ -406,6 +409,8 @@ class CoverageConfig:
     """Random seed (initialisation, sampling, fold split)."""
 
     def __post_init__(self) -> None:
+        if self.seed < 0 or self.folds < 0:
+            raise ValueError(f"seed and folds must be >= 0, got {self.seed} and {self.folds}")
         if self.travel_gap < 0:
             raise ValueError(f"travel_gap must be 0 (off) or a positive frame gap, got "
                              f"{self.travel_gap}")

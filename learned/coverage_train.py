@@ -23,6 +23,7 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
+from hybrid import workdir as W
 from hybrid.dataset import Procedure
 from hybrid.types import InputError
 from learned.calibration import cross_fitted, fit_table, identity_table
@@ -57,7 +58,12 @@ def regression_loss(kind: str, pred: torch.Tensor, target: torch.Tensor) -> torc
 
 
 def _optimise(loss: torch.Tensor, optimizer: torch.optim.Optimizer, schedule) -> float:
-    """One optimiser and schedule step on the loss; returns its value."""
+    """One optimiser and schedule step on the loss; returns its value. A loss that is not
+    finite stops the training before it reaches the weights."""
+    if not torch.isfinite(loss):
+        raise InputError(f"the coverage networks' training loss is {loss.item()}: their inputs "
+                         f"or the learning rate are out of range; check the procedures' depth "
+                         f"and labels, or train with a lower learning rate")
     optimizer.zero_grad()
     loss.backward()
     optimizer.step()
@@ -356,7 +362,7 @@ def train_coverage(data: list[Path], out: Path, config: CoverageConfig,
                                    "sha256_12": file_tag(depth_checkpoint)},
               "seconds": {**previous.get("seconds", {}),
                           "inputs_and_labels": round(time.time() - started, 1)}}
-    record_path.write_text(json.dumps(record, indent=1) + "\n")
+    W.write_json(record_path, record)
     log_file = (out / "train_log.jsonl").open("a")
 
     def log(entry: dict, fold: str = "all") -> None:
@@ -386,7 +392,7 @@ def train_coverage(data: list[Path], out: Path, config: CoverageConfig,
         other_name = "uncalibrated" if config.calibrate else "calibrated"
         metrics = {**coverage_metrics(cv), other_name: coverage_metrics(other)}
         record["cv_metrics"] = metrics
-        (out / "cv_metrics.json").write_text(json.dumps(metrics, indent=1) + "\n")
+        W.write_json(out / "cv_metrics.json", metrics)
         scatter_plots(cv, out / "cv_scatter.png",
                       f"{config.folds}-fold cross-validation by procedure ({len(samples)} "
                       f"procedures)")
@@ -409,6 +415,6 @@ def train_coverage(data: list[Path], out: Path, config: CoverageConfig,
     model.depth_tag = record["depth_checkpoint"]["sha256_12"]
     model.save(final)
     record["seconds"]["total_this_call"] = round(time.time() - started, 1)
-    record_path.write_text(json.dumps(record, indent=1) + "\n")
+    W.write_json(record_path, record)
     log_file.close()
     return final

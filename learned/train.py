@@ -20,6 +20,7 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
+from hybrid import workdir as W
 from hybrid.types import InputError
 from learned.checkpoint import (
     export_weights,
@@ -206,8 +207,14 @@ def train_depth(data: list[Path | FrameSequence], out: Path, config: DepthConfig
         raise InputError(f"{config.maps}: no triplet of frames lies in an agreeing stretch of "
                          f"the maps with {config.map_min_points} map points; the inputs map "
                          f"too rarely to train on (train without --maps)")
-    val_sequences = [s for s in (open_sequence(p, size) for p in expand_inputs(list(val)))
+    val_paths = expand_inputs(list(val))
+    val_sequences = [s for s in (open_sequence(p, size) for p in val_paths)
                      if s.camera is not None]
+    _check_inputs(out / "inputs.json", {
+        "data": [s.name for s in opened] + [input_name(p) for p in paths],
+        "val": [input_name(p) for p in val_paths], "maps": config.maps})
+    if tensors is not None and step < config.steps:  # an extended run's export is stale
+        (out / WEIGHTS).unlink(missing_ok=True)
     torch.manual_seed(config.seed)
     model = DepthModel(config).to(device)
     optimizer = torch.optim.Adam(model.parameters(), lr=config.learning_rate)
@@ -221,7 +228,7 @@ def train_depth(data: list[Path | FrameSequence], out: Path, config: DepthConfig
         init = teacher if teacher is not model else \
             load_depth_model(Path(config.init), config.preset, device)
         model.load_state_dict(init.state_dict())
-    (out / "config.json").write_text(json.dumps(config.to_dict(), indent=1) + "\n")
+    W.write_json(out / "config.json", config.to_dict())
     model.train()
     running: dict[str, float] = {}
     started = time.time() - elapsed  # seconds in the log count the whole run
@@ -241,6 +248,12 @@ def train_depth(data: list[Path | FrameSequence], out: Path, config: DepthConfig
             if maps is not None:
                 terms = with_map_terms(terms, model, maps.batch(
                     config.batch_size, np.random.default_rng([config.seed, step, 1]), device))
+            if not torch.isfinite(terms.total):
+                raise InputError(
+                    f"{out}: the loss is not finite at step {step + 1} ({terms.as_floats()}); "
+                    f"that step was not taken, and the checkpoint, if any, holds the last step "
+                    f"saved. Train again in a new folder with another seed (--seed) or a lower "
+                    f"learning rate (--set learning_rate=...)")
             optimizer.zero_grad()
             terms.total.backward()
             for group in optimizer.param_groups:
@@ -293,7 +306,7 @@ def _frozen_teacher(config: DepthConfig, out: Path, device: torch.device | str) 
     if record.is_file() and json.loads(record.read_text())["sha256_12"] != tag:
         raise InputError(f"{config.init} changed since the run in {out} began (it is the chain "
                          f"term's teacher); restore it or start a new run")
-    record.write_text(json.dumps({"init": config.init, "sha256_12": tag}) + "\n")
+    W.write_json(record, {"init": config.init, "sha256_12": tag})
     return load_depth_model(Path(config.init), config.preset, device)
 
 
@@ -328,11 +341,29 @@ def _resumed_config(saved: DepthConfig, asked: DepthConfig, step: int, path: Pat
     return config
 
 
+def _check_inputs(path: Path, inputs: dict) -> None:
+    """Record a run's inputs, or refuse to resume it on others (runs made before this record
+    are taken as they are)."""
+    if path.is_file() and (before := json.loads(path.read_text())) != inputs:
+        raise InputError(f"{path.parent} holds a run on other inputs ({before}); resume it on "
+                         f"the same --data, --val and --maps, or use another --out")
+    W.write_json(path, inputs)
+
+
 def _drop_records_after(metrics: Path, step: int) -> float:
-    """Forget log lines written after the checkpoint a run resumes from; return its seconds."""
+    """Forget log lines written after the checkpoint a run resumes from (and a last line cut
+    short by a kill); return its seconds."""
     if not metrics.is_file():
         return 0.0
-    records = [json.loads(line) for line in metrics.read_text().splitlines() if line]
+    lines = metrics.read_text().splitlines()
+    records = []
+    for number, line in enumerate(lines, 1):
+        try:
+            records.append(json.loads(line))
+        except json.JSONDecodeError:
+            if number < len(lines):
+                raise InputError(f"{metrics}: line {number} is not a record; the run's log "
+                                 f"is damaged: use another --out") from None
     records = [r for r in records if r["step"] <= step]
-    metrics.write_text("".join(json.dumps(r) + "\n" for r in records))
+    W.write_text(metrics, "".join(json.dumps(r) + "\n" for r in records))
     return float(records[-1]["seconds"]) if records else 0.0

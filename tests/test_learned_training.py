@@ -323,6 +323,54 @@ def test_a_collapsed_depth_network_stops_training_with_a_clear_error(tmp_path, c
     assert not (tmp_path / "run" / "checkpoint.safetensors").exists()  # stopped before saving
 
 
+def test_a_loss_that_is_not_finite_stops_training_before_the_weights(tmp_path, clip,
+                                                                      monkeypatch):
+    """A NaN loss at step 2 stops the run with a clear error; the checkpoint of step 1 is
+    left as it was (the step ran on, saved NaN weights, and crashed in the next backward)."""
+    real = DepthModel.loss
+
+    def nan_at_step_2(self, *args, **kwargs):
+        terms = real(self, *args, **kwargs)
+        nan_at_step_2.calls += 1
+        return replace(terms, total=terms.total * float("nan")) if nan_at_step_2.calls == 2 \
+            else terms
+
+    nan_at_step_2.calls = 0
+    monkeypatch.setattr(DepthModel, "loss", nan_at_step_2)
+    with pytest.raises(InputError, match=r"the loss is not finite at step 2 \(\{'total': nan"):
+        train_depth([clip], tmp_path / "run", replace(TINY, steps=3), save_every=1,
+                    progress=False)
+    tensors, meta = read_checkpoint(tmp_path / "run" / "checkpoint.safetensors")
+    assert meta["step"] == 1 and all(torch.isfinite(t).all() for t in tensors.values())
+
+
+def test_a_run_is_resumed_on_its_own_inputs_only(tmp_path, clip, simulated):
+    """Resuming on other data would mix two runs; extending a finished run removes its export
+    until the longer run ends (the export beside it was the shorter run's)."""
+    run = tmp_path / "run"
+    train_depth([clip], run, replace(TINY, steps=1), progress=False)
+    assert (run / "model.safetensors").is_file()
+    with pytest.raises(InputError, match="holds a run on other inputs"):
+        train_depth([simulated], run, replace(TINY, steps=2), progress=False)
+
+    def killed(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    with pytest.MonkeyPatch.context() as patch:  # the extended run killed at its next step
+        patch.setattr(DepthModel, "loss", killed)
+        with pytest.raises(KeyboardInterrupt):
+            train_depth([clip], run, replace(TINY, steps=2), progress=False)
+    assert not (run / "model.safetensors").exists()
+    train_depth([clip], run, replace(TINY, steps=2), progress=False)
+    assert (run / "model.safetensors").is_file()
+
+
+@pytest.mark.parametrize("field", ["steps", "batch_size", "seed"])
+def test_a_step_count_batch_or_seed_out_of_range_is_refused(field):
+    with pytest.raises(ValueError, match="steps and batch_size must be >= 1 and seed >= 0"):
+        replace(TINY, **{field: -1})
+
+
 def test_exported_weights_drop_the_optimiser_and_predict_the_same(tmp_path, batch):
     model = DepthModel(TINY)
     optimizer = torch.optim.Adam(model.parameters(), lr=1e-3)

@@ -574,6 +574,34 @@ def test_eval_scores_the_run_and_names_its_models(pipeline_run, procedure, tmp_p
     assert saved["summary"]["learned"]["mae"] == pytest.approx(learned_mae)
 
 
+def test_eval_refuses_a_procedure_given_twice(procedure, tmp_path):
+    """Its segments would count twice in every figure (they did)."""
+    result = runner.invoke(app, ["eval", "--data", str(procedure.path), "--data",
+                                 str(procedure.path), "--out", str(tmp_path / "eval")])
+    message = assert_input_error(result, procedure.path.name)
+    assert "more than once" in message
+    assert not (tmp_path / "eval").exists()
+
+
+@pytest.mark.parametrize("command", [
+    ["simulate", "--out", "{tmp}/sim", "--seed", "-1"],
+    ["train-depth", "--data", "{proc}", "--out", "{tmp}/run", "--steps", "0"],
+    ["train-depth", "--data", "{proc}", "--out", "{tmp}/run", "--batch-size", "0"],
+    ["train-depth", "--data", "{proc}", "--out", "{tmp}/run", "--set", "seed=-1"],
+    ["eval-depth", "--data", "{proc}", "--out", "{tmp}/missing/metrics.json"],
+])
+def test_numbers_out_of_range_and_a_missing_out_folder_are_refused_up_front(command, procedure,
+                                                                             tmp_path):
+    """Each stops before any work, with exit status 2 and no traceback (a negative seed was a
+    traceback, 0 steps wrote an untrained model, and eval-depth's --out failed after the whole
+    evaluation)."""
+    args = [a.format(tmp=tmp_path, proc=procedure.path) for a in command]
+    result = runner.invoke(app, args)
+    assert result.exit_code == 2, result.output
+    assert "Traceback" not in result.output
+    assert sorted(p.name for p in tmp_path.iterdir()) == []
+
+
 @pytest.mark.parametrize("option", ["--depth-checkpoint", "--coverage-checkpoint"])
 def test_eval_loads_the_models_it_is_given(option, procedure, tmp_path):
     """`c2d2 eval` runs the pipeline with the model files named, not the shipped ones."""
