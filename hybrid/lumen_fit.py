@@ -8,10 +8,12 @@ back-projected depth) in one unit, and returns a `FittedLumen` parametrised by a
    one that the path left more than twice as far back, is a return visit and is dropped.
    A camera that pushes in and then withdraws over the same stretch leaves them out of order
    in time: the runs of stations that follow one another are joined end to end by the
-   shortest links between their ends (`_ordered`). The video is taken to be a withdrawal
-   (unless configured as an insertion), so ℓ grows from where the camera ends towards where
-   it started: the direction in which the cameras' nearest station falls over time, towards
-   the cecum, where the look-ahead Δ1 of the coverage definition points.
+   shortest links between their ends (`_ordered`). ℓ grows towards the cecum, where the
+   look-ahead Δ1 of the coverage definition points: the direction in which the cameras'
+   nearest station grows with their given places along the colon (`along`: in `c2d2 run`,
+   a segment's window takes its cameras' ℓ on the whole video's lumen), or else, the video
+   taken to be a withdrawal (unless configured as an insertion), falls over time, from where
+   the camera ends towards where it started.
    The path is continued straight on beyond its deep end, to cover the look-ahead band, and a
    little beyond its other end; so is the fitted centreline where the surface ends, and at
    least past the cameras beyond it, so that each camera has its own ℓ.
@@ -131,10 +133,21 @@ class FittedLumen:
 
 
 def fit_lumen(poses: np.ndarray, surface: np.ndarray, fps: float = 30.0,
-              config: LumenFitConfig = LumenFitConfig(), name: str = "reconstruction"
-              ) -> FittedLumen:
-    """Centreline and radius profile of the surface around the camera path (see module doc)."""
+              config: LumenFitConfig = LumenFitConfig(), name: str = "reconstruction",
+              along: np.ndarray | None = None) -> FittedLumen:
+    """Centreline and radius profile of the surface around the camera path (see module doc).
+
+    along: (N,) each camera's place along the colon, growing towards its deep end (e.g. its ℓ
+    on a lumen fitted to the whole video), which orients the fit; None: the cameras' order in
+    time, read backwards on a withdrawal (config.withdrawal)."""
     poses = check_poses(poses, name=f"{name} poses")
+    if along is None:
+        along = np.arange(len(poses), dtype=np.float64) * (-1.0 if config.withdrawal else 1.0)
+    along = np.asarray(along, dtype=np.float64)
+    if along.shape != (len(poses),) or not np.isfinite(along).all() or np.ptp(along) == 0:
+        raise InputError(f"{name}: `along` must give each of the {len(poses)} cameras a finite "
+                         f"place along the colon, not all the same, got shape {along.shape} "
+                         f"and range {np.ptp(along) if along.size else None}")
     surface = np.asarray(surface, dtype=np.float64)
     if surface.ndim != 2 or surface.shape[1] != 3 or len(surface) < config.min_points:
         raise InputError(f"{name}: no surface to fit a lumen to ({surface.shape} points); the "
@@ -151,7 +164,7 @@ def fit_lumen(poses: np.ndarray, surface: np.ndarray, fps: float = 30.0,
         surface = _thinned(surface, config.thinning * r0)
     spacing = config.spacing * r0
     stations, follows = _stations(centres, spacing, _REVISIT * r0)
-    path = _ordered(stations, follows, spacing, centres, config.withdrawal)
+    path = _ordered(stations, follows, spacing, centres, along)
     if len(path) < 4:
         raise InputError(f"{name}: the camera moves {_length(centres):.3g} units, less than a "
                          f"few cross-sections ({4 * spacing:.3g}); too short for a lumen fit")
@@ -241,16 +254,16 @@ def _stations(centres: np.ndarray, spacing: float, revisit: float
 
 
 def _ordered(stations: np.ndarray, follows: np.ndarray, spacing: float, centres: np.ndarray,
-             withdrawal: bool) -> np.ndarray:
-    """The stations in order along the lumen, oriented so that ℓ grows against the camera's
-    travel on a withdrawal and with it on an insertion.
+             along: np.ndarray) -> np.ndarray:
+    """The stations in order along the lumen, oriented so that ℓ grows as the cameras' places
+    `along` the colon do (towards its deep end).
 
     The runs of stations that follow one another along the camera path are joined end to end
     by the shortest links between their ends (a minimum spanning tree over the links within
     each run and those between run ends), and the longest path through that tree is the order;
     stations off it are dropped. A path without return visits is one run, kept as it is. The
-    orientation: the stations nearest to the cameras run down over time on a withdrawal (a
-    least-squares slope over the frames, so it follows where the camera spent its time)."""
+    orientation: the stations nearest to the cameras run up with `along` (a least-squares
+    slope over the frames; along time, it follows where the camera spent its time)."""
     n = len(stations)
     if n < 2:
         return stations
@@ -279,8 +292,7 @@ def _ordered(stations: np.ndarray, follows: np.ndarray, spacing: float, centres:
         chain.append(int(previous[chain[-1]]))
     path = stations[chain]
     nearest = cKDTree(path).query(centres)[1]
-    slope = np.polyfit(np.arange(len(centres)), nearest, 1)[0]
-    return path[::-1] if (slope > 0) == withdrawal else path
+    return path[::-1] if np.polyfit(along, nearest, 1)[0] < 0 else path
 
 
 def _extended(path: np.ndarray, ahead: int, behind: int, spacing: float) -> np.ndarray:

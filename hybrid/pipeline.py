@@ -39,10 +39,11 @@ from fusion.self_calibration import (
 )
 from hybrid import __version__
 from hybrid import workdir as W
-from hybrid.coverage import DELTA_PAIRS_CM
+from hybrid.coverage import DELTA_PAIRS_CM, Lumen
 from hybrid.crosscheck import cross_check
 from hybrid.geometric_coverage import GeometricConfig
 from hybrid.ingest import Ingested, ingest
+from hybrid.lumen_fit import FittedLumen
 from hybrid.npyio import NpyRows, NpyWriter
 from hybrid.reconstruction import ReconstructionConfig, reconstruct
 from hybrid.segment_geometry import LocalSegment, local_segment_coverage, save_maps
@@ -423,17 +424,21 @@ def work_segments(out: Path, config: RunConfig, context: int | None = None,
     it: its depth, network K, image region and smoothed poses, each segment on its own window
     (poses drift) of `context` frames either side (None: half a segment), at the whole
     video's metric scale from the reconstruction stage (the radius rule reads more wall over
-    the whole video than over one window), or with window_scale at each window's own rule."""
+    the whole video than over one window), or with window_scale at each window's own rule;
+    each window's lumen oriented by its cameras' ℓ on the whole video's lumen, so that a
+    window where the camera pushes in for longer than it withdraws is not read backwards."""
     ingested = Ingested.load(out / W.INGEST)
     depth = NpyRows(out / W.DEPTH)
     frames = segment_frame_count(config, ingested.fps)
-    scale = None if window_scale else json.loads(
-        (out / W.RECONSTRUCTION).read_text())["scale_cm_per_unit"]
+    poses = np.load(out / W.POSES)
+    whole_scale = json.loads((out / W.RECONSTRUCTION).read_text())["scale_cm_per_unit"]
+    along, _ = Lumen(FittedLumen.load(out / W.LUMEN).points).project(
+        poses[:, :3, 3] * whole_scale)
     return local_segment_coverage(depth, read_network_K(out, *np.asarray(depth[0]).shape),
-                                  np.load(out / W.POSES), frames,
-                                  frames // 2 if context is None else context, read_region(out),
-                                  config.reconstruction, config.geometric, ingested.fps, name,
-                                  scale=scale)
+                                  poses, frames, frames // 2 if context is None else context,
+                                  read_region(out), config.reconstruction, config.geometric,
+                                  ingested.fps, name,
+                                  scale=None if window_scale else whole_scale, along=along)
 
 
 def run_video(source: Path, out: Path, config: RunConfig = RunConfig(),

@@ -94,8 +94,9 @@ def reconstruct(depth: Sequence[np.ndarray], K: np.ndarray, poses: np.ndarray,
                 rgb: Sequence[np.ndarray] | None = None, region: np.ndarray | None = None,
                 config: ReconstructionConfig = ReconstructionConfig(),
                 scale: float | None = None, fps: float = 30.0, name: str = "video",
-                progress: bool = False) -> Reconstruction:
-    """Scale, mesh and lumen of one video (see the module docstring)."""
+                progress: bool = False, along: np.ndarray | None = None) -> Reconstruction:
+    """Scale, mesh and lumen of one video (see the module docstring); along: each frame's
+    place along the colon, which orients the lumen (fit_lumen)."""
     poses = check_poses(poses, name=f"{name} poses")
     if len(depth) != len(poses) or (rgb is not None and len(rgb) != len(poses)):
         raise InputError(f"{name}: {len(depth)} depth maps, {len(poses)} poses"
@@ -105,7 +106,8 @@ def reconstruct(depth: Sequence[np.ndarray], K: np.ndarray, poses: np.ndarray,
         masked = ScaledDepth(depth, 1.0, region)
         cloud = back_project(masked, K, poses, sampling_stride(len(poses), config.cloud_stride),
                              config.cloud_pixel_stride)
-        first = fit_lumen(poses, cloud, fps, config.lumen, name=f"{name} (scale fit)")
+        first = fit_lumen(poses, cloud, fps, config.lumen, name=f"{name} (scale fit)",
+                          along=along)
         scale = metric_scale(first, config.typical_radius_cm)
     if not (np.isfinite(scale) and scale > 0):
         raise InputError(f"{name}: the metric scale must be a positive number, got {scale}")
@@ -116,5 +118,5 @@ def reconstruct(depth: Sequence[np.ndarray], K: np.ndarray, poses: np.ndarray,
     frames = ((scaled[i], None if rgb is None else rgb[i]) for i in fused)
     tsdf = TsdfConfig(voxel_size=config.voxel_cm, depth_max=config.depth_max_cm)
     mesh = fuse(frames, K, metric[fused], tsdf, name=name, progress=progress)
-    lumen = fit_lumen(metric, mesh.vertices, fps, config.lumen, name=name)
+    lumen = fit_lumen(metric, mesh.vertices, fps, config.lumen, name=name, along=along)
     return Reconstruction(metric, float(scale), mesh, lumen)

@@ -62,8 +62,8 @@ def local_segment_coverage(depth: Sequence[np.ndarray], K: np.ndarray, poses: np
                            reconstruction: ReconstructionConfig, geometric: GeometricConfig,
                            fps: float = 30.0, name: str = "video",
                            scale: float | None = None, threads: int | None = None,
-                           visibility_depth: Sequence[np.ndarray] | None = None
-                           ) -> list[LocalSegment]:
+                           visibility_depth: Sequence[np.ndarray] | None = None,
+                           along: np.ndarray | None = None) -> list[LocalSegment]:
     """Coverage of every full segment, each from a reconstruction of its own window.
 
     depth and poses in one (any) unit, made metric by `scale` (cm per unit) or, if None, by
@@ -73,7 +73,9 @@ def local_segment_coverage(depth: Sequence[np.ndarray], K: np.ndarray, poses: np
     `threads` threads at once (None: one per core, at most 2: the TSDF holds Python's lock, so
     more gain little, and each holds its window's volume); the result does not depend on it.
     visibility_depth, in depth's unit: the depth the visibility test reads, where it is not
-    the one reconstructed (a diagnostic of benchmarks/geometric_eval.py).
+    the one reconstructed (a diagnostic of benchmarks/geometric_eval.py). along: (N,) each
+    frame's place along the colon, growing towards the cecum (e.g. its ℓ on the whole video's
+    lumen), which orients each window's lumen (None: the window's frames in time, fit_lumen).
     """
     n = len(poses)
     if n < segment_frames:
@@ -89,7 +91,8 @@ def local_segment_coverage(depth: Sequence[np.ndarray], K: np.ndarray, poses: np
         label = f"{name} segment {index}"
         try:
             rec = reconstruct(_Window(depth, first, last), K, local, region=region,
-                              config=reconstruction, scale=scale, fps=fps, name=label)
+                              config=reconstruction, scale=scale, fps=fps, name=label,
+                              along=None if along is None else along[first:last])
             result = geometric_coverage(
                 rec.lumen, rec.poses[start - first:stop - first],
                 ScaledDepth(_Window(seen, start, stop), rec.scale, region), K, region, config,

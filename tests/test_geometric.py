@@ -157,6 +157,23 @@ def straight_tube(radius: float = 2.0) -> np.ndarray:
         angle)[None], z[:, None]), axis=-1).reshape(-1, 3)
 
 
+def cameras_at(z: np.ndarray, x: float | np.ndarray = 0.3) -> np.ndarray:
+    """Cameras looking down +z from (x, 0, z) in the straight tube."""
+    poses = np.repeat(np.eye(4)[None], len(z), axis=0)
+    poses[:, 0, 3], poses[:, 2, 3] = x, z
+    return poses
+
+
+def coverage_on_fit_and_axis(fitted: FittedLumen, withdrawal: np.ndarray) -> tuple[float, float]:
+    """The (1, 4) coverage of one segment of these cameras in the 2-cm tube, on the fitted
+    lumen and on the tube's axis (ℓ growing with z)."""
+    axis = FittedLumen(np.array([[0.0, 0.0, -10.0], [0.0, 0.0, 40.0]]), np.array([RADIUS] * 2))
+    depth = [cylinder_depth(FORWARD_CAMERA, p) for p in withdrawal]
+    config = GeometricConfig(segment_frames=len(withdrawal))
+    return tuple(geometric_coverage(lumen, withdrawal, depth, FORWARD_CAMERA.K, config=config)
+                 .segments[0].coverage[pair_key((1.0, 4.0))] for lumen in (fitted, axis))
+
+
 @pytest.mark.parametrize("depths", [(10, 16, 2), (10, 13, 2), (14, 2, 8), (14, 2)])
 def test_lumen_fit_follows_the_tube_when_the_camera_goes_back_over_its_path(depths):
     """A window that pushes in before withdrawing visits stations out of order in time: the
@@ -168,8 +185,7 @@ def test_lumen_fit_follows_the_tube_when_the_camera_goes_back_over_its_path(dept
     frames = [150 if abs(b - a) < 7 else 450 for a, b in zip(depths, depths[1:], strict=False)]
     z = np.concatenate([np.linspace(a, b, n) for a, b, n in zip(depths, depths[1:], frames,
                                                                       strict=False)])
-    poses = np.repeat(np.eye(4)[None], len(z), axis=0)
-    poses[:, 0, 3], poses[:, 2, 3] = 0.3, z
+    poses = cameras_at(z)
     for withdrawal in (True, False):
         lumen = fit_lumen(poses, straight_tube(), config=LumenFitConfig(withdrawal=withdrawal))
         step = np.diff(lumen.points[:, 2])
@@ -185,10 +201,8 @@ def test_lumen_fit_follows_the_tube_when_the_camera_comes_back_beside_its_path(s
     half a radius away, and the centreline does not fold back (it did for both sides when
     only stations a quarter of a spacing away were taken for return visits)."""
     z = np.concatenate([np.linspace(10, 16, 150), np.linspace(16, 2, 450)])
-    poses = np.repeat(np.eye(4)[None], len(z), axis=0)
-    poses[:, 2, 3] = z
-    poses[:, 0, 3] = np.concatenate([np.full(150, 0.3), np.linspace(0.3, 0.3 - side, 30),
-                                     np.full(420, 0.3 - side)])
+    poses = cameras_at(z, np.concatenate([np.full(150, 0.3), np.linspace(0.3, 0.3 - side, 30),
+                                          np.full(420, 0.3 - side)]))
     tube = straight_tube()
     lumen = fit_lumen(poses, tube[(tube[:, 2] > 1) & (tube[:, 2] < 22)])
     assert (np.diff(lumen.points[:, 2]) > 0).all()
@@ -201,18 +215,29 @@ def test_a_withdrawal_after_a_push_in_reads_its_coverage_on_the_fitted_lumen():
     the lumen fitted to the whole window is that on the true axis (a folded lumen gave some
     of its cameras one ℓ and cut V short)."""
     z = np.concatenate([np.linspace(10, 16, 150), np.linspace(16, 2, 450)])
-    poses = np.repeat(np.eye(4)[None], len(z), axis=0)
-    poses[:, 0, 3], poses[:, 2, 3] = 0.3, z
-    fitted = fit_lumen(poses, straight_tube())
-    axis = FittedLumen(np.array([[0.0, 0.0, -10.0], [0.0, 0.0, 40.0]]), np.array([RADIUS] * 2))
-    withdrawal = poses[300:]
-    depth = [cylinder_depth(FORWARD_CAMERA, p) for p in withdrawal]
-    config = GeometricConfig(segment_frames=len(withdrawal))
-    key = pair_key((1.0, 4.0))
-    on_fit, on_axis = (geometric_coverage(lumen, withdrawal, depth, FORWARD_CAMERA.K,
-                                          config=config).segments[0].coverage[key]
-                       for lumen in (fitted, axis))
+    poses = cameras_at(z)
+    on_fit, on_axis = coverage_on_fit_and_axis(fit_lumen(poses, straight_tube()), poses[300:])
     assert on_fit == pytest.approx(on_axis, abs=0.02)
+
+
+def test_a_window_that_pushes_in_for_longer_than_it_withdraws_is_oriented_by_along():
+    """A withdrawal's window in which the camera pushes in 6 cm over 15 s, then withdraws 4 cm
+    over 5: by time spent it reads as an insertion, and its lumen runs backwards (the
+    withdrawal's stretch read 0.118 against 0.837 on the true axis). Given the cameras'
+    places along the colon (in `c2d2 run`, their ℓ on the whole video's lumen; here their
+    depth), ℓ grows towards the deep end and that stretch reads what the axis gives."""
+    z = np.concatenate([np.linspace(10, 16, 450), np.linspace(16, 12, 150)])
+    poses = cameras_at(z)
+    tube = straight_tube()
+    tube = tube[(tube[:, 2] > 1) & (tube[:, 2] < 24)]
+    by_time, by_place = fit_lumen(poses, tube), fit_lumen(poses, tube, along=z)
+    assert (np.diff(by_time.points[:, 2]) < 0).all()
+    assert (np.diff(by_place.points[:, 2]) > 0).all()
+    on_fit, on_axis = coverage_on_fit_and_axis(by_place, poses[450:])
+    assert on_fit == pytest.approx(on_axis, abs=0.02)
+    for bad in (z[:-1], np.full_like(z, 3.0), np.where(z > 15, np.nan, z)):
+        with pytest.raises(InputError, match="must give each of the 600 cameras a finite place"):
+            fit_lumen(poses, tube, along=bad)
 
 
 def test_stations_of_a_path_that_crosses_itself_stay_in_order():
@@ -227,7 +252,7 @@ def test_stations_of_a_path_that_crosses_itself_stay_in_order():
                            np.linspace([20, 10, 0], [0.3, -9.7, 0], 600)])
     stations, follows = _stations(path, 1.0, 2.0)  # spacing and revisit as fit_lumen's
     assert not follows.all()  # the crossing skipped some
-    ordered = _ordered(stations, follows, 1.0, path, withdrawal=False)
+    ordered = _ordered(stations, follows, 1.0, path, np.arange(len(path)))  # an insertion
     assert len(ordered) == len(stations)
     assert np.abs(ordered[0]).max() < 1e-9  # an insertion: ℓ grows from where it started
     # no jump but over the stations dropped at the crossing: those of the second arm within

@@ -422,6 +422,24 @@ def test_a_geometric_failure_is_recorded_unless_memory_or_disk_ran_out(
         assert not (work / W.GEOMETRIC_ERROR).exists()
 
 
+def test_segment_windows_are_oriented_by_the_whole_videos_lumen(pipeline_run, monkeypatch):
+    """work_segments gives each frame its ℓ on the whole video's lumen, which falls over
+    this withdrawal, to orient the windows' lumens."""
+    import hybrid.pipeline as P
+
+    out, _ = pipeline_run
+    given = {}
+
+    def record(*args, **kwargs):
+        given.update(kwargs)
+        return []
+
+    monkeypatch.setattr(P, "local_segment_coverage", record)
+    work_segments(out, RunConfig())
+    along = given["along"]
+    assert along.shape == (200,) and np.polyfit(np.arange(200), along, 1)[0] < 0
+
+
 def test_geometric_stages_repeat_exactly(pipeline_run, procedure, tmp_path):
     """Run again from the same depth, the pose graph, reconstruction and geometric coverage
     give the same bytes (the odometry and the lumen fit do not depend on thread timing)."""
