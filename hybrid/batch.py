@@ -162,7 +162,11 @@ def _earlier_rows(out: Path, videos: list[Path]) -> dict[str, dict]:
         return {}
     names = {str(video): video.name for video in videos}
     with path.open(newline="") as f:
-        return {names[row["video"]]: row for row in csv.DictReader(f)
+        reader = csv.DictReader(f)
+        if not {"video", "status"} <= set(reader.fieldnames or ()):
+            raise InputError(f"{path} is not a summary written by c2d2 batch (no video and "
+                             f"status columns); choose another --out")
+        return {names[row["video"]]: row for row in reader
                 if row["video"] in names and row["status"] != "pending"}
 
 

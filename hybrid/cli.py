@@ -12,6 +12,7 @@ from typing import TYPE_CHECKING, Annotated
 import typer
 
 from hybrid import LOG_FORMAT
+from hybrid import workdir as W
 from hybrid.types import InputError
 
 if TYPE_CHECKING:
@@ -548,12 +549,11 @@ def eval_depth(
         typer.echo(f"{name:{width}s} " + " ".join(f"{m[k]:{c}.4f}" for k, c in zip(
             keys, columns, strict=True)))
     if out is not None:
-        out.write_text(json.dumps({"mean": summary, "procedures": results,
-                                   "adapt_steps": adapt_steps,
-                                   "intrinsics": ("self-calibration where its stretches "
-                                                  "agree, else the intrinsics head"
-                                                  if self_calibrate else "intrinsics head"),
-                                   "self_calibration": stretches}, indent=1) + "\n")
+        W.write_json(out, {"mean": summary, "procedures": results, "adapt_steps": adapt_steps,
+                           "intrinsics": ("self-calibration where its stretches agree, else "
+                                          "the intrinsics head" if self_calibrate
+                                          else "intrinsics head"),
+                           "self_calibration": stretches})
 
 
 @app.command("train-coverage")

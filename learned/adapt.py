@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import json
 import logging
-from dataclasses import replace
+from dataclasses import asdict, replace
 from pathlib import Path
 
 import torch
@@ -58,12 +58,15 @@ def adapt_depth_model(checkpoint: Path, config: DepthConfig, seq: FrameSequence,
         raise InputError(f"adaptation needs at least 1 step, got {steps}")
     out = Path(out)
     record = {"input": str(Path(seq.name).resolve()), "frames": seq.num_frames,
-              "model": file_tag(checkpoint), "steps": steps}
+              "model": file_tag(checkpoint), "steps": steps, "fps": seq.fps,
+              "crop": asdict(seq.crop)}
     previous = out / RECORD
-    if previous.is_file() and json.loads(previous.read_text()) != record:
-        raise InputError(f"{out} holds an adaptation of another model, to another input or "
-                         f"for another number of steps ({previous}); remove it or choose "
-                         f"another output folder")
+    if previous.is_file():
+        made = json.loads(previous.read_text())  # a folder made before fps and crop were kept
+        if {k: v for k, v in record.items() if k in made or k not in ("fps", "crop")} != made:
+            raise InputError(f"{out} holds an adaptation of another model, to another input "
+                             f"(or its frame rate or image region) or for another number of "
+                             f"steps ({previous}); remove it or choose another output folder")
     config = adaptation_config(config, checkpoint, steps, seq)
     out.mkdir(parents=True, exist_ok=True)
     W.write_json(previous, record)

@@ -208,8 +208,10 @@ def train_depth(data: list[Path | FrameSequence], out: Path, config: DepthConfig
                          f"the maps with {config.map_min_points} map points; the inputs map "
                          f"too rarely to train on (train without --maps)")
     val_paths = expand_inputs(list(val))
-    val_sequences = [s for s in (open_sequence(p, size) for p in val_paths)
-                     if s.camera is not None]
+    val_sequences = [open_sequence(p, size) for p in val_paths]
+    if untrue := [s.name for s in val_sequences if s.camera is None]:
+        raise InputError(f"--val {untrue[0]}: not a simulated procedure; validation scores depth "
+                         f"against the simulator's truth, so it takes simulated procedures only")
     _check_inputs(out / "inputs.json", {
         "data": [s.name for s in opened] + [input_name(p) for p in paths],
         "val": [input_name(p) for p in val_paths], "maps": config.maps})

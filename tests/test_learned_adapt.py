@@ -5,7 +5,7 @@ scores and `depth` writes the adapted model when asked."""
 from __future__ import annotations
 
 import json
-from dataclasses import replace
+from dataclasses import asdict, replace
 
 import numpy as np
 import pytest
@@ -54,7 +54,8 @@ def test_adapting_lowers_the_loss_on_the_video(start, clip, tmp_path):
     assert after < 0.95 * before, (before, after)
     record = json.loads((tmp_path / "adapted" / "adapted_to.json").read_text())
     assert record == {"input": str(clip.resolve()), "frames": seq.num_frames,
-                      "model": file_tag(start), "steps": 15}
+                      "model": file_tag(start), "steps": 15, "fps": seq.fps,
+                      "crop": asdict(seq.crop)}
 
 
 def test_a_folder_of_another_adaptation_is_refused(start, clip, tmp_path):
@@ -64,9 +65,17 @@ def test_a_folder_of_another_adaptation_is_refused(start, clip, tmp_path):
                                 region=seq.region, crop=seq.crop)
     other_model = tmp_path / "other.safetensors"
     other_model.write_bytes(start.read_bytes() + b" ")  # another file, another hash
-    for args in ((start, other_input, 1), (start, seq, 2), (other_model, seq, 1)):
+    slower = FrameSequence(seq.name, seq.fps / 2, seq.size, seq.frame, seq.num_frames,
+                           region=seq.region, crop=seq.crop)
+    for args in ((start, other_input, 1), (start, seq, 2), (other_model, seq, 1),
+                 (start, slower, 1)):
         with pytest.raises(InputError, match="another number of steps"):
             adapt_depth_model(args[0], TINY, args[1], tmp_path / "adapted", steps=args[2])
+    # a folder made before the frame rate and crop were recorded is still taken as it is
+    made = tmp_path / "adapted" / "adapted_to.json"
+    made.write_text(json.dumps({k: v for k, v in json.loads(made.read_text()).items()
+                                if k not in ("fps", "crop")}))
+    adapt_depth_model(start, TINY, seq, tmp_path / "adapted", steps=1)
     with pytest.raises(InputError, match="at least 1 step"):
         adapt_depth_model(start, TINY, seq, tmp_path / "zero", steps=0)
     with pytest.raises(InputError, match=r"other: frames of \(64, 96\), the model takes"):

@@ -7,6 +7,7 @@ import json
 import math
 from dataclasses import replace
 
+import cv2
 import numpy as np
 import pytest
 import torch
@@ -363,6 +364,18 @@ def test_a_run_is_resumed_on_its_own_inputs_only(tmp_path, clip, simulated):
     assert not (run / "model.safetensors").exists()
     train_depth([clip], run, replace(TINY, steps=2), progress=False)
     assert (run / "model.safetensors").is_file()
+
+
+def test_validation_on_an_input_without_truth_is_refused(tmp_path, clip):
+    """It was dropped without a word, and the run validated on nothing."""
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    seq = open_sequence(clip, (TINY.height, TINY.width))
+    for i in range(3):
+        cv2.imwrite(str(frames / f"{i}.png"), seq.frame(i)[..., ::-1])
+    with pytest.raises(InputError, match=r"--val .*frames: not a simulated procedure"):
+        train_depth([clip], tmp_path / "run", replace(TINY, steps=1), val=[frames],
+                    progress=False)
 
 
 @pytest.mark.parametrize("field", ["steps", "batch_size", "seed"])

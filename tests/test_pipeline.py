@@ -855,6 +855,19 @@ def test_a_worker_that_dies_fails_its_own_video_only(frames, tmp_path, monkeypat
     assert "out of memory" in (out / "b.avi" / W.ERROR).read_text()
 
 
+def test_batch_refuses_an_out_folder_with_a_summary_it_did_not_write(frames, tmp_path):
+    videos = tmp_path / "videos"
+    videos.mkdir()
+    write_video(videos / "a.avi", frames[:110], FPS)
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "summary.csv").write_text("patient,notes\n1,fine\n")
+    message = assert_input_error(runner.invoke(app, ["batch", str(videos), "--out", str(out)]),
+                                 "summary.csv")
+    assert "not a summary written by c2d2 batch" in message
+    assert (out / "summary.csv").read_text() == "patient,notes\n1,fine\n"
+
+
 def test_batch_resumes_after_a_kill_and_isolates_a_bad_file(frames, tmp_path, monkeypatch):
     videos = tmp_path / "videos"
     videos.mkdir()
