@@ -2,7 +2,8 @@
 
 Reads one procedure's work folder of a finished `c2d2 eval`, jitters the smoothed poses'
 translations (normal noise per axis, in the network's unit; one draw per seed), rebuilds the
-segment's window as `c2d2 run` does (hybrid.segment_geometry) three ways, and prints the
+segment's window as `c2d2 run` did before its windows were oriented by the whole video's
+lumen (hybrid.segment_geometry; each window in time here) three ways, and prints the
 segment's geometric coverage (Δ = 1-4 cm) for each: everything refitted; the scale held at the
 unjittered window's; the scale and the fitted lumen both held.
 

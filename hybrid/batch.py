@@ -76,7 +76,8 @@ def run_batch(folder: Path, out: Path, config: RunConfig | None = None, workers:
                     rows[futures[future].name] = future.result()
                     _write_summary(out, videos, rows)
                     bar.update(1)
-            except BaseException:  # e.g. Ctrl-C: start no more videos
+            except BaseException:  # e.g. Ctrl-C: start no more videos (those running end
+                # with the signal or run to their end)
                 pool.shutdown(wait=False, cancel_futures=True)
                 raise
     bar.close()
@@ -89,10 +90,12 @@ def _run_in_process(video: Path, work: Path, config: RunConfig, device: torch.de
     memory) fails its own video only: the row says so, and work/error.txt."""
     try:
         return in_own_process(_run_one, video, work, config, None, device, threads=threads)
-    except BrokenProcessPool as err:
+    except Exception as err:  # the process died, or could not start
         work.mkdir(parents=True, exist_ok=True)
         message = (f"the process running this video died ({err}); it may have run out of "
-                   f"memory: run it alone, or with fewer --workers")
+                   f"memory: run it alone, or with fewer --workers"
+                   if isinstance(err, BrokenProcessPool) else
+                   f"no process could run this video ({type(err).__name__}: {err})")
         W.write_text(work / W.ERROR, message + "\n")
         return {"video": str(video), "status": "failed", "error": message}
 

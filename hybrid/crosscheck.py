@@ -124,12 +124,14 @@ def cross_check(out: Path, ingested: Ingested, config) -> CrossCheck:
         reasons = {int(k): v for k, v in saved.get("errors", {}).items()}
     elif (out / W.GEOMETRIC_ERROR).is_file():
         error = (out / W.GEOMETRIC_ERROR).read_text().strip()
-    for name, values in ((W.LEARNED, {s["index"]: s["coverage"] for s in learned}),
-                         (W.GEOMETRIC, geometric)):
-        if bad := sorted(i for i, v in values.items() if v is not None and not math.isfinite(v)):
-            raise InputError(f"{out / name}: segments {bad} have a coverage that is not a "
-                             f"number; the stage that wrote it went wrong: delete the file and "
-                             f"run again")
+    for index, value in geometric.items():  # the geometric branch never stops a video
+        if value is not None and not math.isfinite(value):
+            geometric[index] = None
+            reasons[index] = f"the geometric coverage is not a number ({value})"
+    if bad := [s["index"] for s in learned if not math.isfinite(s["coverage"])]:
+        raise InputError(f"{out / W.LEARNED}: segments {bad} have a learned coverage that is "
+                         f"not a number: the networks read an input out of range (a defect "
+                         f"of c2d2's checks: please report it with the video)")
     usable = ingested.usable
     rows = []
     for segment in learned:

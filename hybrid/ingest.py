@@ -29,7 +29,15 @@ from tqdm import tqdm
 from hybrid.npyio import NpyWriter
 from hybrid.types import InputError
 from hybrid.workdir import write_json
-from learned.frames import VIDEO_SUFFIXES, Crop, check_fps, detect_region, image_files, read_image
+from learned.frames import (
+    VIDEO_SUFFIXES,
+    Crop,
+    check_fps,
+    detect_region,
+    image_files,
+    is_procedure,
+    read_image,
+)
 
 DARK_GREY = 30
 """Mean grey level (0-255) under which a frame is too dark."""
@@ -80,9 +88,7 @@ class _Source:
 def ingest(path: Path, size: tuple[int, int], frames_out: Path, region: np.ndarray | None = None,
            fps: float | None = None, progress: bool = False) -> tuple[Ingested, np.ndarray]:
     """Write frames_out (N, H, W, 3) uint8 and return the record and the region at (H, W)."""
-    source = _open(Path(path), fps)
-    if source.region is not None and region is not None:
-        raise InputError(f"{path}: a simulated procedure has no border; drop the mask")
+    source = _open(Path(path), fps, region)
     first_pass = tqdm(source.open(), total=source.count_hint or None, unit="frame",
                       desc=f"scan {Path(path).name}", disable=not progress)
     brightest, count, shape = None, 0, None
@@ -161,15 +167,13 @@ def ingest(path: Path, size: tuple[int, int], frames_out: Path, region: np.ndarr
     return record, small_region
 
 
-def _open(path: Path, fps: float | None) -> _Source:
+def _open(path: Path, fps: float | None, region: np.ndarray | None) -> _Source:
     check_fps(fps)
     if not path.exists():
         raise InputError(f"input not found: {path}")
-    if path.is_dir() and (path / "rgb").is_dir() and (path / "camera.json").is_file():
+    if is_procedure(path, fps, region):
         from hybrid.dataset import Procedure
 
-        if fps is not None:
-            raise InputError(f"{path}: a simulated procedure has its own frame rate; drop --fps")
         proc = Procedure.open(path)
         frames = range(proc.num_frames)
         region = np.ones((proc.camera.height, proc.camera.width), dtype=bool)

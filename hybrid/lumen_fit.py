@@ -4,8 +4,9 @@ Reads camera-to-world poses (the smoothed trajectory) and surface points (TSDF m
 back-projected depth) in one unit, and returns a `FittedLumen` parametrised by arc length.
 
 1. Stations: the camera centres, smoothed over time, resampled every `spacing` along their
-   path; a station closer than spacing/2 to an earlier one, or closer than about a radius to
-   one that the path left more than twice as far back, is a return visit and is dropped.
+   path; a station closer than spacing/2 to an earlier one, or closer than half a radius to
+   one that the path left more than twice as far back (and a spacing more), is a return
+   visit and is dropped.
    A camera that pushes in and then withdraws over the same stretch leaves them out of order
    in time: the runs of stations that follow one another are joined end to end by the
    shortest links between their ends (`_ordered`). ℓ grows towards the cecum, where the
@@ -144,10 +145,9 @@ def fit_lumen(poses: np.ndarray, surface: np.ndarray, fps: float = 30.0,
     if along is None:
         along = np.arange(len(poses), dtype=np.float64) * (-1.0 if config.withdrawal else 1.0)
     along = np.asarray(along, dtype=np.float64)
-    if along.shape != (len(poses),) or not np.isfinite(along).all() or np.ptp(along) == 0:
+    if along.shape != (len(poses),) or not np.isfinite(along).all():
         raise InputError(f"{name}: `along` must give each of the {len(poses)} cameras a finite "
-                         f"place along the colon, not all the same, got shape {along.shape} "
-                         f"and range {np.ptp(along) if along.size else None}")
+                         f"place along the colon, got shape {along.shape}")
     surface = np.asarray(surface, dtype=np.float64)
     if surface.ndim != 2 or surface.shape[1] != 3 or len(surface) < config.min_points:
         raise InputError(f"{name}: no surface to fit a lumen to ({surface.shape} points); the "
@@ -164,10 +164,12 @@ def fit_lumen(poses: np.ndarray, surface: np.ndarray, fps: float = 30.0,
         surface = _thinned(surface, config.thinning * r0)
     spacing = config.spacing * r0
     stations, follows = _stations(centres, spacing, _REVISIT * r0)
-    path = _ordered(stations, follows, spacing, centres, along)
+    path = stations if len(stations) < 4 else _ordered(stations, follows, spacing, centres,
+                                                          along)
     if len(path) < 4:
-        raise InputError(f"{name}: the camera moves {_length(centres):.3g} units, less than a "
-                         f"few cross-sections ({4 * spacing:.3g}); too short for a lumen fit")
+        raise InputError(f"{name}: the camera's path passes fewer than 4 cross-sections "
+                         f"{spacing:.3g} apart (it moves {_length(centres):.3g} units in all, "
+                         f"some of them back over its path); too short for a lumen fit")
     ahead = round(config.extend / config.spacing)
     behind = round(config.extend_back / config.spacing)
     path = _extended(path, ahead, behind, spacing)
@@ -291,6 +293,9 @@ def _ordered(stations: np.ndarray, follows: np.ndarray, spacing: float, centres:
     while chain[-1] != one_end:
         chain.append(int(previous[chain[-1]]))
     path = stations[chain]
+    if np.ptp(along) == 0:
+        raise InputError("the cameras' places along the colon are all the same (`along`): no "
+                         "direction to orient the lumen by")
     nearest = cKDTree(path).query(centres)[1]
     return path[::-1] if np.polyfit(along, nearest, 1)[0] < 0 else path
 

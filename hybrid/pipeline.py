@@ -58,7 +58,7 @@ from learned.coverage_nets import (
     relative_scale,
     resample_features,
 )
-from learned.frames import FrameSequence, check_fps, image_files
+from learned.frames import FrameSequence, check_fps, image_files, is_procedure
 from learned.infer import aggregate_intrinsics, infer_sequence
 from learned.model import DepthModel, load_depth_model
 from learned.travel import chain_relative, no_travel, travel_features
@@ -510,7 +510,9 @@ def run_video(source: Path, out: Path, config: RunConfig = RunConfig(),
             warnings.append(f"the pose graph stopped at its cap of {record['max_iterations']} "
                             f"iterations in {len(capped)} window(s) (first frames {capped[:10]}) "
                             f"before converging; those poses are less smoothed than the graph "
-                            f"allows: raise PoseGraphConfig.max_iterations (RunConfig.posegraph)")
+                            f"allows (to raise the cap: PoseGraphConfig.max_iterations, in "
+                            f"RunConfig.posegraph through the Python API, into a new work "
+                            f"folder)")
     dropped = run.ingested.frames % run.segment_frames
     if dropped:
         echo(f"note: the last {dropped} frames ({dropped / run.ingested.fps:.1f} s) do not fill "
@@ -585,7 +587,10 @@ def _region_tag(region: np.ndarray | None) -> str | None:
 def _prepare(out: Path, config: RunConfig, source: Path, models: Models,
              region: np.ndarray | None) -> None:
     """Create the work directory; refuse one that holds a run of another video, image region
-    (--mask), config or model files."""
+    (--mask), config or model files, and a simulated procedure with a frame rate or mask."""
+    if not (out / W.CONFIG).is_file():  # a new run: refused before anything is written (a
+        # folder holding a run says first how the options differ from its own)
+        is_procedure(source, config.fps, region)
     try:
         out.mkdir(parents=True, exist_ok=True)
         probe = out / ".write-test"

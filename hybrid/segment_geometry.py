@@ -100,6 +100,8 @@ def local_segment_coverage(depth: Sequence[np.ndarray], K: np.ndarray, poses: np
             return LocalSegment(replace(result.segments[0], index=index, start=start, stop=stop),
                                 result)
         except Exception as err:  # one window's failure must not cost the other segments
+            if isinstance(err, MemoryError | OSError):
+                raise  # ... but a lack of memory or disk is no verdict on it: retried
             if not isinstance(err, InputError):
                 log.warning("%s failed", label, exc_info=True)
             empty = SegmentCoverage(index, start, stop, None, None,

@@ -168,11 +168,7 @@ def open_sequence(path: Path, size: tuple[int, int], region: np.ndarray | None =
     check_fps(fps)
     if not path.exists():
         raise InputError(f"input not found: {path}")
-    if path.is_dir() and (path / "rgb").is_dir() and (path / "camera.json").is_file():
-        if region is not None:
-            raise InputError(f"{path}: a simulated procedure has no border; drop the mask")
-        if fps is not None:
-            raise InputError(f"{path}: a simulated procedure has its own frame rate; drop --fps")
+    if is_procedure(path, fps, region):
         return _simulated(path, size)
     if path.is_dir():
         return _image_folder(path, size, region, fps or 30.0)
@@ -180,6 +176,20 @@ def open_sequence(path: Path, size: tuple[int, int], region: np.ndarray | None =
         return _video(path, size, region, fps)
     raise InputError(f"{path}: not a video ({', '.join(sorted(VIDEO_SUFFIXES))}), a folder of "
                      f"images or a simulated procedure")
+
+
+def is_procedure(path: Path, fps: float | None = None, region: np.ndarray | None = None
+                 ) -> bool:
+    """Whether `path` is a simulated procedure (a folder with rgb/ and camera.json); one given
+    a frame rate or an image region is refused (it has its own, and no border)."""
+    path = Path(path)
+    if not (path.is_dir() and (path / "rgb").is_dir() and (path / "camera.json").is_file()):
+        return False
+    if region is not None:
+        raise InputError(f"{path}: a simulated procedure has no border; drop the mask")
+    if fps is not None:
+        raise InputError(f"{path}: a simulated procedure has its own frame rate; drop --fps")
+    return True
 
 
 def _simulated(path: Path, size: tuple[int, int]) -> FrameSequence:

@@ -184,6 +184,7 @@ def infer_to_folder(model: DepthModel, seq: FrameSequence, out: Path, progress: 
     """Infer and write the files listed in the module docstring, the depth maps batch by
     batch; intrinsics.json gives `calibration`'s K where one is given and has one."""
     out = Path(out)
+    (out / "intrinsics.json").unlink(missing_ok=True)  # an earlier run's mark of completion
     partial = out / "depth.partial"  # replaces depth/ when whole: no maps of an earlier run
     shutil.rmtree(partial, ignore_errors=True)
     result = infer_sequence(model, seq, progress=progress, depth_out=DepthFiles(partial))

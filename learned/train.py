@@ -213,8 +213,9 @@ def train_depth(data: list[Path | FrameSequence], out: Path, config: DepthConfig
         raise InputError(f"--val {untrue[0]}: not a simulated procedure; validation scores depth "
                          f"against the simulator's truth, so it takes simulated procedures only")
     _check_inputs(out / "inputs.json", {
-        "data": [s.name for s in opened] + [input_name(p) for p in paths],
-        "val": [input_name(p) for p in val_paths], "maps": config.maps})
+        "data": [str(Path(p).resolve()) for p in [s.name for s in opened] + paths],
+        "val": [str(p.resolve()) for p in val_paths],
+        "maps": config.maps and str(Path(config.maps).resolve())})
     if tensors is not None and step < config.steps:  # an extended run's export is stale
         (out / WEIGHTS).unlink(missing_ok=True)
     torch.manual_seed(config.seed)
@@ -254,8 +255,9 @@ def train_depth(data: list[Path | FrameSequence], out: Path, config: DepthConfig
                 raise InputError(
                     f"{out}: the loss is not finite at step {step + 1} ({terms.as_floats()}); "
                     f"that step was not taken, and the checkpoint, if any, holds the last step "
-                    f"saved. Train again in a new folder with another seed (--seed) or a lower "
-                    f"learning rate (--set learning_rate=...)")
+                    f"saved. Train again in a new folder with another seed or a lower learning "
+                    f"rate (train-depth --seed, --set learning_rate=...), or, adapting to a "
+                    f"video, with fewer steps")
             optimizer.zero_grad()
             terms.total.backward()
             for group in optimizer.param_groups:
@@ -348,7 +350,7 @@ def _check_inputs(path: Path, inputs: dict) -> None:
     are taken as they are)."""
     if path.is_file() and (before := json.loads(path.read_text())) != inputs:
         raise InputError(f"{path.parent} holds a run on other inputs ({before}); resume it on "
-                         f"the same --data, --val and --maps, or use another --out")
+                         f"the same inputs, or train into another folder")
     W.write_json(path, inputs)
 
 

@@ -199,7 +199,7 @@ def test_lumen_fit_follows_the_tube_when_the_camera_comes_back_beside_its_path(s
     """The 6-cm push-in, then the withdrawal `side` cm to one side of it in the 2-cm tube,
     whose wall is seen from 1 to 22 cm: the stations of the way back are return visits though
     half a radius away, and the centreline does not fold back (it did for both sides when
-    only stations a quarter of a spacing away were taken for return visits)."""
+    only stations within half a spacing were taken for return visits)."""
     z = np.concatenate([np.linspace(10, 16, 150), np.linspace(16, 2, 450)])
     poses = cameras_at(z, np.concatenate([np.full(150, 0.3), np.linspace(0.3, 0.3 - side, 30),
                                           np.full(420, 0.3 - side)]))
@@ -235,9 +235,13 @@ def test_a_window_that_pushes_in_for_longer_than_it_withdraws_is_oriented_by_alo
     assert (np.diff(by_place.points[:, 2]) > 0).all()
     on_fit, on_axis = coverage_on_fit_and_axis(by_place, poses[450:])
     assert on_fit == pytest.approx(on_axis, abs=0.02)
-    for bad in (z[:-1], np.full_like(z, 3.0), np.where(z > 15, np.nan, z)):
+    for bad in (z[:-1], np.where(z > 15, np.nan, z)):
         with pytest.raises(InputError, match="must give each of the 600 cameras a finite place"):
             fit_lumen(poses, tube, along=bad)
+    with pytest.raises(InputError, match="places along the colon are all the same"):
+        fit_lumen(poses, tube, along=np.full_like(z, 3.0))
+    with pytest.raises(InputError, match="passes fewer than 4 cross-sections"):  # not `along`
+        fit_lumen(cameras_at(np.full(600, 10.0)), tube, along=np.full(600, 3.0))
 
 
 def test_stations_of_a_path_that_crosses_itself_stay_in_order():

@@ -390,27 +390,33 @@ def test_a_pose_graph_stopped_at_its_iteration_cap_is_a_warning(pipeline_run, pr
     assert result["warnings"] == [
         f"the pose graph stopped at its cap of {record['max_iterations']} iterations in 1 "
         f"window(s) (first frames [0]) before converging; those poses are less smoothed than "
-        f"the graph allows: raise PoseGraphConfig.max_iterations (RunConfig.posegraph)"]
+        f"the graph allows (to raise the cap: PoseGraphConfig.max_iterations, in "
+        f"RunConfig.posegraph through the Python API, into a new work folder)"]
 
 
-@pytest.mark.parametrize("error, recorded", [
-    (RuntimeError("no lumen"), True), (MemoryError(), False), (OSError(28, "disk full"), False)])
+@pytest.mark.parametrize("where, error, recorded", [
+    ("posegraph", RuntimeError("no lumen"), True), ("posegraph", MemoryError(), False),
+    ("posegraph", OSError(28, "disk full"), False), ("window", MemoryError(), False)])
 def test_a_geometric_failure_is_recorded_unless_memory_or_disk_ran_out(
-        pipeline_run, procedure, tmp_path, monkeypatch, error, recorded):
+        pipeline_run, procedure, tmp_path, monkeypatch, where, error, recorded):
     """A geometric stage's error is the branch's verdict on the video (recorded, not retried,
-    the learned branch still reports); a lack of memory or disk is not: the run stops, and
-    nothing is recorded that would keep a rerun from trying again."""
+    the learned branch still reports; a segment's window's, that segment's reason); a lack of
+    memory or disk is not: the run stops, and nothing is recorded that would keep a rerun from
+    trying again (a window's was recorded as its segment's reason)."""
     import hybrid.pipeline as P
+    import hybrid.segment_geometry as G
 
     out, _ = pipeline_run
     work = tmp_path / "work"
     shutil.copytree(out, work)
-    (work / W.POSES).unlink()
+    module, function, output = {"posegraph": (P, "smooth_trajectory", W.POSES),
+                                "window": (G, "reconstruct", W.GEOMETRIC)}[where]
+    (work / output).unlink()
 
     def fails(*args, **kwargs):
         raise error
 
-    monkeypatch.setattr(P, "smooth_trajectory", fails)
+    monkeypatch.setattr(module, function, fails)
     if recorded:
         result = run_video(procedure.path, work, RunConfig(), progress=False, echo=print)
         assert (work / W.GEOMETRIC_ERROR).read_text() == "posegraph: RuntimeError: no lumen\n"
@@ -419,7 +425,7 @@ def test_a_geometric_failure_is_recorded_unless_memory_or_disk_ran_out(
     else:
         with pytest.raises(type(error)):
             run_video(procedure.path, work, RunConfig(), progress=False, echo=print)
-        assert not (work / W.GEOMETRIC_ERROR).exists()
+        assert not (work / W.GEOMETRIC_ERROR).exists() and not (work / output).exists()
 
 
 def test_segment_windows_are_oriented_by_the_whole_videos_lumen(pipeline_run, monkeypatch):
@@ -754,8 +760,11 @@ def test_a_flat_image_inside_a_circular_border_reads_as_blurred(shape, given, tm
     assert record.blurred == [True, True, False, False]
 
 
-def test_ingest_refuses_a_frame_rate_or_mask_for_a_simulated_procedure(procedure, tmp_path):
-    """A simulated procedure has its own frame rate and no border (they were taken silently)."""
+def test_a_frame_rate_or_mask_for_a_simulated_procedure_is_refused_before_any_file(
+        procedure, tmp_path):
+    """A simulated procedure has its own frame rate and no border (they were taken silently);
+    `run` refuses them before its work folder records them, so that a run without them may
+    follow in the same folder."""
     from hybrid.ingest import ingest
 
     with pytest.raises(InputError, match="its own frame rate; drop --fps"):
@@ -763,6 +772,10 @@ def test_ingest_refuses_a_frame_rate_or_mask_for_a_simulated_procedure(procedure
     mask = np.ones((procedure.camera.height, procedure.camera.width), bool)
     with pytest.raises(InputError, match="has no border; drop the mask"):
         ingest(procedure.path, (128, 160), tmp_path / "frames.npy", mask)
+    work = tmp_path / "work"
+    message = assert_input_error(runner.invoke(app, ["run", str(procedure.path), "--out",
+                                                     str(work), "--fps", "15"]), "drop --fps")
+    assert "simulated procedure" in message and not work.exists()
 
 
 def test_ingest_refuses_an_image_region_too_thin_to_judge_frames_by(frames, tmp_path):
@@ -1087,10 +1100,17 @@ def test_cross_check_by_hand(tmp_path):
     assert (saved["agreement"], saved["geometric_weight"]) == (0.5, 1.0)
 
 
-def test_cross_check_refuses_a_coverage_that_is_not_a_number(tmp_path):
-    """NaN would read as class 2, 'mostly covered', and never be deficient."""
+def test_cross_check_takes_no_coverage_that_is_not_a_number(tmp_path):
+    """NaN would read as class 2, 'mostly covered', and never be deficient: a geometric one
+    leaves its segment to the learned value, with the reason; a learned one is refused."""
     ingested = hand_made_work_dir(tmp_path / "work", [0.85, np.nan, 0.25, 0.10, None])
-    with pytest.raises(InputError, match=r"geometric.json: segments \[1\] have a coverage"):
+    row = cross_check(tmp_path / "work", ingested, RunConfig()).rows[1]
+    assert (row.geometric, row.agree, row.coverage) == (None, None, row.learned)
+    assert row.geometric_error == "the geometric coverage is not a number (nan)"
+    learned = json.loads((tmp_path / "work" / W.LEARNED).read_text())
+    learned["segments"][2]["coverage"] = float("nan")
+    W.write_json(tmp_path / "work" / W.LEARNED, learned)
+    with pytest.raises(InputError, match=r"learned.json: segments \[2\] have a learned coverage"):
         cross_check(tmp_path / "work", ingested, RunConfig())
 
 
