@@ -839,11 +839,13 @@ def test_batch_with_two_workers_gives_what_one_gives(frames, tmp_path):
         assert two["mean_geometric"] == one["mean_geometric"]
 
 
-def test_a_worker_that_dies_fails_its_own_video_only(frames, tmp_path, monkeypatch):
+@pytest.mark.parametrize("fault", ["dies", "cannot start"])
+def test_a_worker_that_dies_fails_its_own_video_only(fault, frames, tmp_path, monkeypatch):
     """With two workers each video runs in a process of its own: one whose process dies (here
-    by os._exit, as when the kernel kills it for its memory) fails alone, the reason in its row
-    and error.txt, and the other finishes (in one shared pool of workers, every video not yet
-    finished failed with it)."""
+    by os._exit, as when the kernel kills it for its memory), or cannot start, fails alone,
+    the reason in its row and error.txt, and the other finishes (in one shared pool of
+    workers, every video not yet finished failed with a dead one; a process that could not
+    start stopped the batch)."""
     import hybrid.batch as B
 
     videos = tmp_path / "videos"
@@ -852,20 +854,25 @@ def test_a_worker_that_dies_fails_its_own_video_only(frames, tmp_path, monkeypat
         write_video(videos / name, frames[:110], FPS)
     real = B.in_own_process
 
-    def dies_on_b(function, video, *args, threads):
-        if video.name == "b.avi":
+    def fails_on_b(function, video, *args, threads):
+        if video.name != "b.avi":
+            return real(function, video, *args, threads=threads)
+        if fault == "dies":
             return real(os._exit, 137, threads=threads)
-        return real(function, video, *args, threads=threads)
+        raise OSError(12, "Cannot allocate memory")
 
-    monkeypatch.setattr(B, "in_own_process", dies_on_b)
+    monkeypatch.setattr(B, "in_own_process", fails_on_b)
     out = tmp_path / "out"
     result = runner.invoke(app, ["batch", str(videos), "--out", str(out), "--workers", "2"])
     assert result.exit_code == 1, result.output
     rows = read_summary(out)
     assert (rows["a.avi"]["status"], rows["a.avi"]["segments"]) == ("done", "1")
     assert rows["b.avi"]["status"] == "failed"
-    assert rows["b.avi"]["error"].startswith("the process running this video died")
-    assert "out of memory" in (out / "b.avi" / W.ERROR).read_text()
+    expected = {"dies": "the process running this video died",
+                "cannot start": "no process could run this video (OSError: [Errno 12] Cannot "
+                                "allocate memory)"}[fault]
+    assert rows["b.avi"]["error"].startswith(expected)
+    assert (out / "b.avi" / W.ERROR).read_text().startswith(expected)
 
 
 def test_batch_refuses_an_out_folder_with_a_summary_it_did_not_write(frames, tmp_path):
