@@ -325,32 +325,41 @@ class _Run:
             cues.append(relative_scale(medians, name=self.source.name))
         return np.concatenate(cues, axis=1)
 
-    def frame_outputs(self) -> tuple[np.ndarray, np.ndarray]:
-        """Per-frame coverage (N, 3) and features (N, 4, F) of the mirror views, computed in
-        chunks."""
+    def frame_outputs(self, cues: np.ndarray, start: int, stop: int
+                      ) -> tuple[np.ndarray, np.ndarray]:
+        """Per-frame coverage (n, 3) and features (n, 4, F) of the mirror views of frames
+        [start, stop), computed in chunks; cues: every frame's (self.cues)."""
         model = self.models.coverage
-        depth, region = self.depth(), self.region
-        cues = self.cues(len(depth))
+        depth = self.depth()
         size = (model.config.height, model.config.width)
         outputs = [model.frame_outputs(normalise_depth(
-            np.asarray(depth[start:start + 512], np.float32), region, size,
+            np.asarray(depth[first:min(first + 512, stop)], np.float32), self.region, size,
             name=self.source.name, by_median=model.config.median_normalise),
-            cues[start:start + 512])
-            for start in range(0, len(depth), 512)]
+            cues[first:min(first + 512, stop)])
+            for first in range(start, stop, 512)]
         return (np.concatenate([o[0] for o in outputs]),
                 np.concatenate([o[1] for o in outputs]))
 
     def learned(self) -> None:
+        """Per-frame coverage of every frame, and each full segment's from its own frames'
+        features, read one segment at a time: the features of a whole video (a 30-minute one's
+        110 MB at the fast preset, 1.8 GB at the paper's) are never held at once."""
         model = self.models.coverage
-        per_frame, features = self.frame_outputs()
+        count = len(self.depth())
+        cues = self.cues(count)
         L, T = self.segment_frames, model.config.segment_frames
-        resampled = resample_features(features, L, T)
-        count = len(features) // L
-        values = model.segment_outputs(resampled, [k * T for k in range(count)])
-        segments = [{"index": k, "start": k * L, "stop": (k + 1) * L,
-                     "coverage": float(values[k])} for k in range(count)]
+        per_frame, segments = [], []
+        for start in range(0, count, L):
+            stop = min(start + L, count)
+            coverage, features = self.frame_outputs(cues, start, stop)
+            per_frame.append(coverage)
+            if stop - start == L:  # trailing frames get per-frame values only
+                value = model.segment_outputs(resample_features(features, L, T), [0])[0]
+                segments.append({"index": start // L, "start": start, "stop": stop,
+                                 "coverage": float(value)})
         record = {"delta_pairs_cm": [list(p) for p in DELTA_PAIRS_CM],
-                  "per_frame": per_frame.round(5).tolist(), "segments": segments}
+                  "per_frame": np.concatenate(per_frame).round(5).tolist(),
+                  "segments": segments}
         if model.config.field_of_view == "true":
             K = self.self_calibrated_K()
             record["field_of_view"] = {"source": "hidden"} if K is None else {
@@ -412,7 +421,8 @@ def video_features(source: Path, work: Path, config: RunConfig, models: Models,
         run.depth_stage()
     if config.self_calibrate and not (work / W.SELF_CALIBRATION).is_file():
         run.self_calibration()
-    return run.frame_outputs()[1], run.segment_frames
+    count = len(run.depth())
+    return run.frame_outputs(run.cues(count), 0, count)[1], run.segment_frames
 
 
 GEOMETRIC_STAGES = ("posegraph", "reconstruction", "geometric")

@@ -33,6 +33,7 @@ from hybrid.pipeline import (
     Models,
     RunConfig,
     _differing,
+    _Run,
     made_with,
     recorded_config,
     run_video,
@@ -426,6 +427,26 @@ def test_a_geometric_failure_is_recorded_unless_memory_or_disk_ran_out(
         with pytest.raises(type(error)):
             run_video(procedure.path, work, RunConfig(), progress=False, echo=print)
         assert not (work / W.GEOMETRIC_ERROR).exists() and not (work / output).exists()
+
+
+def test_segments_read_one_at_a_time_equal_the_whole_videos_windows(pipeline_run, procedure):
+    """The learned stage reads each segment's frames on their own (memory bounded in the
+    video's length); its values are those of the windows cut from the whole video's
+    resampled features, as it computed them before."""
+    from learned.coverage_nets import resample_features
+
+    out, _ = pipeline_run
+    config = RunConfig()
+    models = Models.load(config)
+    run = _Run(procedure.path, out, config, models, None, False)
+    count = len(run.depth())
+    features = run.frame_outputs(run.cues(count), 0, count)[1]
+    L, T = run.segment_frames, models.coverage.config.segment_frames
+    whole = models.coverage.segment_outputs(resample_features(features, L, T),
+                                            [k * T for k in range(count // L)])
+    saved = json.loads((out / W.LEARNED).read_text())["segments"]
+    assert count // L == len(saved) == 2
+    assert [s["coverage"] for s in saved] == pytest.approx(whole.tolist(), abs=1e-6)
 
 
 def test_segment_windows_are_oriented_by_the_whole_videos_lumen(pipeline_run, monkeypatch):
