@@ -84,7 +84,7 @@ def simulate(
                          ] = None,
     max_frames: Annotated[int | None, typer.Option(min=1, help="Stop each withdrawal after N "
                                                    "frames.")] = None,
-    first_index: Annotated[int, typer.Option(help="Index of the first procedure.")] = 0,
+    first_index: Annotated[int, typer.Option(min=0, help="Index of the first procedure.")] = 0,
     workers: Annotated[int, typer.Option(min=1, help="Procedures simulated in parallel.")] = 1,
     camera_seed: Annotated[int | None, typer.Option(
         min=0, help="Give procedure i the camera that procedure i of this seed has with the same "

@@ -92,24 +92,34 @@ class Procedure:
 
     @cached_property
     def poses(self) -> np.ndarray:
-        return check_poses(np.load(self.path / "poses.npy"), name=str(self.path / "poses.npy"))
+        return check_poses(self._read("poses.npy", np.load),
+                           name=str(self.path / "poses.npy"))
 
     @cached_property
     def lumen(self) -> np.ndarray:
-        return np.load(self.path / "lumen.npy")
+        return self._read("lumen.npy", np.load)
 
     @cached_property
     def coverage(self) -> CoverageResult:
-        return CoverageResult.from_json(json.loads((self.path / "coverage.json").read_text()))
+        return self._read("coverage.json", lambda p: CoverageResult.from_json(
+            json.loads(p.read_text())))
 
     @cached_property
     def meta(self) -> dict:
-        return json.loads((self.path / "meta.json").read_text())
+        return self._read("meta.json", lambda p: json.loads(p.read_text()))
 
     @property
     def style(self) -> str:
         """The appearance style it was rendered in (pink, dusk, nbi)."""
-        return self.meta["config"]["style"]
+        return self._read("meta.json", lambda _: self.meta["config"]["style"])
+
+    def _read(self, name: str, read):
+        """read(path) of one of the folder's files, or an InputError naming it."""
+        try:
+            return read(self.path / name)
+        except (ValueError, OSError, KeyError, TypeError) as err:  # JSONDecodeError included
+            raise InputError(f"{self.path / name} cannot be read ({type(err).__name__}: {err}); "
+                             f"simulate the procedure again with `c2d2 simulate`") from err
 
     @property
     def num_frames(self) -> int:

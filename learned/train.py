@@ -50,13 +50,15 @@ WEIGHTS = "model.safetensors"
 
 
 def expand_inputs(paths: list[Path]) -> list[Path]:
-    """Each path is one input, or a folder holding simulated procedures or videos."""
+    """Each path is one input, or a folder holding simulated procedures or videos (not a
+    procedure still being simulated, `*.partial`)."""
     out: list[Path] = []
     for path in map(Path, paths):
         if not path.exists():
             raise InputError(f"training input not found: {path}")
         children = sorted(path.iterdir()) if path.is_dir() else []
-        procedures = [c for c in children if (c / "camera.json").is_file() and (c / "rgb").is_dir()]
+        procedures = [c for c in children if (c / "camera.json").is_file()
+                      and (c / "rgb").is_dir() and not c.name.endswith(".partial")]
         videos = [c for c in children if c.suffix.lower() in VIDEO_SUFFIXES]
         out += procedures or videos or [path]
     return out

@@ -237,11 +237,17 @@ def test_out_folder_that_does_not_exist(tmp_path, inputs):
     assert "does not exist" in assert_fails_naming(result, tmp_path, "absent")
 
 
-@pytest.mark.parametrize("length", ["5", "-1"])
+@pytest.mark.parametrize("length", ["5", "-1", "nan", "inf"])
 def test_simulate_a_colon_too_short_to_withdraw(tmp_path, length):
     result = runner.invoke(app, ["simulate", "--out", str(tmp_path), "--length-cm", length])
-    assert result.exit_code == 2 and "colon length must exceed" in result.stderr
+    assert result.exit_code == 2 and "colon length must be finite and exceed" in result.stderr
     assert not any(tmp_path.iterdir())  # nothing half-written
+
+
+def test_simulate_refuses_a_negative_first_index(tmp_path):
+    result = runner.invoke(app, ["simulate", "--out", str(tmp_path), "--first-index", "-1"])
+    assert result.exit_code == 2 and "Traceback" not in result.output
+    assert not any(tmp_path.iterdir())
 
 
 def test_simulate_labels_the_coverage_networks_windows(tmp_path):

@@ -80,6 +80,27 @@ def test_open_names_the_missing_file(simulated, tmp_path):
         Procedure.open(tmp_path / "nothing")
 
 
+@pytest.mark.parametrize("name, read", [
+    ("poses.npy", lambda p: p.poses), ("lumen.npy", lambda p: p.lumen),
+    ("coverage.json", lambda p: p.coverage), ("meta.json", lambda p: p.style)])
+def test_a_damaged_file_of_a_procedure_is_named(simulated, tmp_path, name, read):
+    """It was a traceback from NumPy or json."""
+    copy = tmp_path / "proc"
+    shutil.copytree(simulated, copy)
+    (copy / name).write_bytes(b"\x00 not what it should be")
+    with pytest.raises(InputError, match=f"{name} cannot be read .*simulate the procedure again"):
+        read(Procedure.open(copy))
+
+
+def test_a_procedure_still_being_simulated_is_no_training_input(simulated, tmp_path):
+    """A killed `simulate` leaves proc_NNNN.partial, camera.json and rgb/ in it."""
+    from learned.train import expand_inputs
+
+    shutil.copytree(simulated, tmp_path / "proc_0000")
+    shutil.copytree(simulated, tmp_path / "proc_0001.partial")
+    assert expand_inputs([tmp_path]) == [tmp_path / "proc_0000"]
+
+
 def test_depth_png_quantisation(tmp_path):
     depth = np.array([[0.0, 0.001, 0.0031, 12.345678], [65535 * DEPTH_UNIT_CM, 200.0, 1.0, 0.5]],
                      dtype=np.float32)

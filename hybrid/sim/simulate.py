@@ -75,10 +75,11 @@ class SimConfig:
             raise ValueError(f"unknown preset {self.preset!r}; choose {sorted(PRESET_IMAGE_SIZE)}")
         get_style(self.style)
         shortest = self.trajectory.start_depth_cm + self.trajectory.end_margin_cm
-        if self.colon.length_cm <= shortest:
-            raise ValueError(f"colon length must exceed {shortest:g} cm (the withdrawal starts "
-                             f"{self.trajectory.start_depth_cm:g} cm before the cecum and stops "
-                             f"{self.trajectory.end_margin_cm:g} cm before the rectum)")
+        if not shortest < self.colon.length_cm < float("inf"):
+            raise ValueError(f"colon length must be finite and exceed {shortest:g} cm (the "
+                             f"withdrawal starts {self.trajectory.start_depth_cm:g} cm before "
+                             f"the cecum and stops {self.trajectory.end_margin_cm:g} cm before "
+                             f"the rectum)")
         if self.trajectory.max_frames is not None and self.trajectory.max_frames < 1:
             raise ValueError("max_frames must be at least 1")
         if self.frame_step is not None and (self.frame_step < 1
