@@ -266,9 +266,7 @@ def _ordered(stations: np.ndarray, follows: np.ndarray, spacing: float, centres:
     stations off it are dropped. A path without return visits is one run, kept as it is. The
     orientation: the stations nearest to the cameras run up with `along` (a least-squares
     slope over the frames; along time, it follows where the camera spent its time)."""
-    n = len(stations)
-    if n < 2:
-        return stations
+    n = len(stations)  # 4 or more (fit_lumen)
     run = np.flatnonzero(follows[1:]) + 1  # station k follows k - 1 within a run
     starts = np.flatnonzero(~follows)
     ends = np.unique(np.concatenate([starts, starts[1:] - 1, [n - 1]]))

@@ -364,6 +364,8 @@ def _drop_records_after(metrics: Path, step: int) -> float:
     lines = metrics.read_text().splitlines()
     records = []
     for number, line in enumerate(lines, 1):
+        if not line:
+            continue
         try:
             records.append(json.loads(line))
         except json.JSONDecodeError:

@@ -227,8 +227,9 @@ def test_train_depth_resumes_where_it_stopped(tmp_path, clip, mirror):
     path = train_depth([clip], resumed, config, log_every=1, progress=False)
     assert path == resumed / "checkpoint.safetensors"
     assert read_checkpoint(path)[1]["step"] == 2
-    with (resumed / "metrics.jsonl").open("a") as log:  # as if killed after a later step
-        log.write(json.dumps({"step": 3, "total": -1.0}) + "\n")
+    with (resumed / "metrics.jsonl").open("a") as log:  # as if killed after a later step,
+        log.write(json.dumps({"step": 3, "total": -1.0}) + "\n")  # the next line cut short
+        log.write('{"step": 4, "tot')
     train_depth([clip], resumed, replace(config, steps=4, pair_gap_s=0.9, learning_rate=0.1),
                 log_every=1, progress=False)
     train_depth([clip], straight, replace(config, steps=4), log_every=1, progress=False)
