@@ -523,6 +523,7 @@ def eval_depth(
     model = load_depth_model(checkpoint, device=device)
     size = (model.config.height, model.config.width)
     paths = expand_inputs(data)
+    _each_once(paths)
     names = [input_name(p) for p in paths]
     results, stretches = {}, {}
     with tempfile.TemporaryDirectory() as scratch:

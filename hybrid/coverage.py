@@ -10,7 +10,6 @@ closed, vertices in any order.
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -20,6 +19,7 @@ from scipy.spatial import cKDTree
 from tqdm import tqdm
 
 from hybrid.types import Camera, InputError, check_poses
+from hybrid.workdir import write_json
 
 if TYPE_CHECKING:
     import open3d as o3d
@@ -177,7 +177,7 @@ class CoverageResult:
         )
 
     def save(self, path: Path) -> None:
-        Path(path).write_text(json.dumps(self.to_json(), indent=1) + "\n")
+        write_json(path, self.to_json())
 
     def segment_labels(self, pair: tuple[float, float] | None = None) -> np.ndarray:
         """Segment coverages for one pair (default pair if None), NaN where undefined."""

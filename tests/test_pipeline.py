@@ -634,12 +634,13 @@ def test_eval_refuses_a_procedure_given_twice(procedure, tmp_path):
     ["train-depth", "--data", "{proc}", "--out", "{tmp}/run", "--batch-size", "0"],
     ["train-depth", "--data", "{proc}", "--out", "{tmp}/run", "--set", "seed=-1"],
     ["eval-depth", "--data", "{proc}", "--out", "{tmp}/missing/metrics.json"],
+    ["eval-depth", "--data", "{proc}", "--data", "{proc}", "--out", "{tmp}/metrics.json"],
 ])
 def test_numbers_out_of_range_and_a_missing_out_folder_are_refused_up_front(command, procedure,
                                                                              tmp_path):
     """Each stops before any work, with exit status 2 and no traceback (a negative seed was a
-    traceback, 0 steps wrote an untrained model, and eval-depth's --out failed after the whole
-    evaluation)."""
+    traceback, 0 steps wrote an untrained model, eval-depth's --out failed after the whole
+    evaluation, and a procedure given twice to eval-depth was evaluated twice)."""
     args = [a.format(tmp=tmp_path, proc=procedure.path) for a in command]
     result = runner.invoke(app, args)
     assert result.exit_code == 2, result.output
