@@ -58,7 +58,7 @@ def main() -> None:
             if transform is not None:
                 f = (f.astype(np.float64) @ A.T + b).astype(np.float32)
                 with torch.no_grad():
-                    frame = torch.sigmoid(model.frame.head(torch.from_numpy(f))).mean(1).numpy()
+                    frame = model.frame.coverage(torch.from_numpy(f)).mean(1).numpy()
             predictions.add(frame, s.frame_labels,
                             model.segment_outputs(f, s.segment_starts.tolist()),
                             s.segment_labels)

@@ -53,7 +53,7 @@ def frame_outputs(model: CoverageModel, samples: list[ProcedureSamples], desc: s
     for s in tqdm(samples, desc=desc):
         frame, features = model.frame_outputs(s.inputs, s.cues)
         with torch.no_grad():
-            views = torch.sigmoid(model.frame.head(torch.from_numpy(features))).numpy()
+            views = model.frame.coverage(torch.from_numpy(features)).numpy()
         out.append((frame, features, views))
     return out
 

@@ -49,7 +49,7 @@ def main() -> None:
             coverage, features = model.frame_outputs(s.inputs, s.cues)
             starts = s.segment_starts.tolist()
             with torch.no_grad():
-                one = torch.sigmoid(model.frame.head(torch.from_numpy(features[:, 0]))).numpy()
+                one = model.frame.coverage(torch.from_numpy(features[:, 0])).numpy()
             ways["one view"].add(one, s.frame_labels,
                                  one_view_segments(model, features[:, 0], starts),
                                  s.segment_labels)

@@ -181,7 +181,9 @@ def refine_relative_poses(relative: dict[int, np.ndarray], depth: Sequence[np.nd
         for begin in range(0, n, _BLOCK):
             stop = min(n, begin + _BLOCK)
             for t in range(begin, stop):  # read while the threads align the block before
-                d = check_depth(depth[t], size, f"{name} frame {t}") * np.float32(unit)
+                d = check_depth(depth[t], size, f"{name} frame {t}")
+                if median is not None:
+                    d *= np.float32(unit)
                 window[t] = _images(rgb[t], d, region, nearest, f"{name} frame {t}",
                                     (scale, light_power))
             bar.update(stop - begin)

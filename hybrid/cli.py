@@ -644,11 +644,10 @@ def eval_coverage(
     predictions = evaluate(net, samples)
     metrics = coverage_metrics(predictions)
     out.mkdir(parents=True, exist_ok=True)
-    (out / "metrics.json").write_text(json.dumps(
-        {"model": str(model_path), "data": [str(p) for p in data], "view_hidden": view_hidden,
-         **metrics, "segment_mae_interval": segment_mae_interval(predictions),
-         "procedures": procedure_segments(predictions, [s.name for s in samples])},
-        indent=1) + "\n")
+    W.write_json(out / "metrics.json", {
+        "model": str(model_path), "data": [str(p) for p in data], "view_hidden": view_hidden,
+        **metrics, "segment_mae_interval": segment_mae_interval(predictions),
+        "procedures": procedure_segments(predictions, [s.name for s in samples])})
     scatter_plots(predictions, out / "scatter.png", f"{model_path.name} on "
                   f"{', '.join(p.name for p in data)}")
     typer.echo(format_table({model_path.stem: metrics}))

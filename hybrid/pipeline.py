@@ -47,7 +47,7 @@ from hybrid.lumen_fit import FittedLumen
 from hybrid.npyio import NpyRows, NpyWriter
 from hybrid.reconstruction import ReconstructionConfig, reconstruct
 from hybrid.segment_geometry import LocalSegment, local_segment_coverage, save_maps
-from hybrid.types import Camera, InputError
+from hybrid.types import Camera, InputError, failure_reason
 from learned.checkpoint import file_tag
 from learned.coverage_eval import CLASS_EDGES
 from learned.coverage_nets import (
@@ -488,10 +488,9 @@ def run_video(source: Path, out: Path, config: RunConfig = RunConfig(),
             try:
                 stage()
             except Exception as err:  # the geometric branch's failure must not stop the video
-                if name not in GEOMETRIC_STAGES or isinstance(err, MemoryError | OSError):
-                    raise  # ... but a lack of memory or disk is no verdict on it: retried
-                kind = "" if isinstance(err, InputError) else f"{type(err).__name__}: "
-                W.write_text(geometric_error, f"{name}: {kind}{err}\n")
+                if name not in GEOMETRIC_STAGES:
+                    raise
+                W.write_text(geometric_error, f"{name}: {failure_reason(err)}\n")
             finally:
                 timing[name] = round(time.time() - tic, 2)
                 W.write_json(timing_path, timing)

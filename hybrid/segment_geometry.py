@@ -22,7 +22,7 @@ import numpy as np
 from hybrid.coverage import DEFAULT_PAIR_CM, DELTA_PAIRS_CM, SegmentCoverage, pair_key
 from hybrid.geometric_coverage import GeometricConfig, GeometricCoverage, geometric_coverage
 from hybrid.reconstruction import ReconstructionConfig, ScaledDepth, reconstruct
-from hybrid.types import InputError, thread_count
+from hybrid.types import InputError, failure_reason, thread_count
 
 log = logging.getLogger(__name__)
 
@@ -100,14 +100,12 @@ def local_segment_coverage(depth: Sequence[np.ndarray], K: np.ndarray, poses: np
             return LocalSegment(replace(result.segments[0], index=index, start=start, stop=stop),
                                 result)
         except Exception as err:  # one window's failure must not cost the other segments
-            if isinstance(err, MemoryError | OSError):
-                raise  # ... but a lack of memory or disk is no verdict on it: retried
+            reason = failure_reason(err)
             if not isinstance(err, InputError):
                 log.warning("%s failed", label, exc_info=True)
             empty = SegmentCoverage(index, start, stop, None, None,
                                     {pair_key(p): None for p in DELTA_PAIRS_CM})
-            kind = "" if isinstance(err, InputError) else f"{type(err).__name__}: "
-            return LocalSegment(empty, None, f"{kind}{err}")
+            return LocalSegment(empty, None, reason)
 
     with ThreadPoolExecutor(thread_count(threads, "segment threads", most=2)) as pool:
         return list(pool.map(one, range(n // segment_frames)))

@@ -76,6 +76,15 @@ class Camera:
             ) from err
 
 
+def failure_reason(err: Exception) -> str:
+    """How a failure is recorded as a result: an InputError's message, or 'Type: message'. A
+    lack of memory or disk (MemoryError, OSError) says nothing of the input and is raised
+    again instead, so that nothing recorded keeps a rerun from trying again."""
+    if isinstance(err, MemoryError | OSError):
+        raise err
+    return str(err) if isinstance(err, InputError) else f"{type(err).__name__}: {err}"
+
+
 def check_poses(poses: np.ndarray, name: str = "poses") -> np.ndarray:
     """Validate an (N, 4, 4) stack of rigid camera-to-world poses; return it as float64."""
     poses = np.asarray(poses)

@@ -129,8 +129,12 @@ class FrameNet(nn.Module):
         x = torch.cat([depth, planes], dim=1).contiguous(memory_format=torch.channels_last)
         return self.encoder(x)[-1].mean(dim=(2, 3))
 
+    def coverage(self, features: torch.Tensor) -> torch.Tensor:
+        """Per-frame coverage (..., 3) from features (..., F)."""
+        return torch.sigmoid(self.head(features))
+
     def forward(self, depth: torch.Tensor, cues: torch.Tensor) -> torch.Tensor:
-        return torch.sigmoid(self.head(self.features(depth, cues)))
+        return self.coverage(self.features(depth, cues))
 
 
 class SegmentNet(nn.Module):
@@ -257,7 +261,7 @@ class CoverageModel(nn.Module):
                                     torch.cat([v[1] for v in views]))
             f = f.view(len(flips), len(x), -1).transpose(0, 1)
             features.append(f.cpu().numpy())
-            coverage.append(torch.sigmoid(self.frame.head(f)).mean(dim=1).cpu().numpy())
+            coverage.append(self.frame.coverage(f).mean(dim=1).cpu().numpy())
         return np.concatenate(coverage), np.concatenate(features)
 
     @torch.no_grad()
