@@ -108,11 +108,7 @@ def smooth_trajectory(relative: dict[int, np.ndarray], config: PoseGraphConfig,
     step = _median_step(measured, name)
     sigmas = np.array([config.rotation_sigma] * 3 + [config.translation_sigma * step] * 3)
     graph = _Graph(measured, config, sigmas)
-    if config.window == 0:
-        poses, initial, final, iterations = graph.optimise(range(count), {}, chained, name)
-        capped = [0] if iterations >= config.max_iterations else []
-    else:
-        poses, initial, final, iterations, capped = graph.windowed(count, chained, name)
+    poses, initial, final, iterations, capped = graph.windowed(count, chained, name)
     poses = np.linalg.inv(poses[0]) @ poses  # the prior holds it to 1e-6: make it exact
     return PoseGraphResult(poses, chained, initial, final, iterations, capped,
                            time.perf_counter() - start)
@@ -216,15 +212,16 @@ class _Graph:
 
     def windowed(self, count: int, initial: np.ndarray, name: str
                  ) -> tuple[np.ndarray, float, float, int, list[int]]:
-        """Optimise windows in order; each commits all but its last max(skips) frames, which
-        the next window re-estimates with the committed frames before them held fixed. Also
-        returns the first frames of the windows stopped at max_iterations."""
-        lag = max(self.config.skips)
+        """Optimise windows of config.window frames in order (one window of all the frames
+        when it is 0); each commits all but its last max(skips) frames, which the next window
+        re-estimates with the committed frames before them held fixed. Also returns the first
+        frames of the windows stopped at max_iterations."""
+        lag, size = max(self.config.skips), self.config.window or count
         guess = initial.copy()
         poses = np.empty_like(initial)
         done, before, after, iterations, capped = 0, 0.0, 0.0, 0, []
         while done < count:
-            stop = min(done + self.config.window - (lag if done else 0), count)
+            stop = min(done + size - (lag if done else 0), count)
             fixed = {t: _pose(poses[t]) for t in range(max(done - lag, 0), done)}
             window, e0, e1, steps = self.optimise(range(done, stop), fixed, guess, name)
             before, after, iterations = before + e0, after + e1, iterations + steps
@@ -232,7 +229,7 @@ class _Graph:
                 capped.append(done)
             guess[done:stop] = window
             # The next window's new frames: the chain continued from this window's last pose.
-            ahead = slice(stop, stop + self.config.window)
+            ahead = slice(stop, stop + size)
             guess[ahead] = window[-1] @ np.linalg.inv(initial[stop - 1]) @ initial[ahead]
             commit = stop if stop == count else stop - lag
             poses[done:commit] = window[:commit - done]

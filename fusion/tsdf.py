@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import logging
 import os
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -41,19 +41,16 @@ class TsdfConfig:
     block_count: int = 2000
     """Blocks allocated up front (the hash map grows beyond it; each block with colour holds
     16³ voxels × 20 bytes = 80 kB)."""
-    stride: int = 1
-    """Integrate every stride-th frame."""
-
     def __post_init__(self) -> None:
         positive = {"voxel_size": self.voxel_size, "truncation_voxels": self.truncation_voxels,
                     "depth_max": self.depth_max, "block_resolution": self.block_resolution,
-                    "block_count": self.block_count, "stride": self.stride}
+                    "block_count": self.block_count}
         bad = [k for k, v in positive.items() if not (np.isfinite(v) and v > 0)]
-        bad += [k for k in ("block_resolution", "block_count", "stride")
+        bad += [k for k in ("block_resolution", "block_count")
                 if k not in bad and getattr(self, k) != int(getattr(self, k))]
         if bad or not (np.isfinite(self.weight_threshold) and self.weight_threshold >= 0):
             raise InputError(f"TsdfConfig needs positive {', '.join(bad) or 'values'} (whole "
-                             f"numbers of blocks and frames) and a weight_threshold >= 0: {self}")
+                             f"numbers of blocks) and a weight_threshold >= 0: {self}")
 
 
 @dataclass
@@ -107,10 +104,12 @@ class TsdfVolume:
         self.frames = 0
         self.any_valid = False
 
-    def integrate(self, depth: np.ndarray, rgb: np.ndarray | None, pose: np.ndarray) -> None:
+    def integrate(self, depth: np.ndarray, rgb: np.ndarray | None, pose: np.ndarray,
+                  number: int | None = None) -> None:
         """Add one frame: depth (H, W) z-depth, 0 = invalid; rgb (H, W, 3) uint8 or None;
-        pose (4, 4) camera-to-world."""
-        what = f"{self.name} frame {self.frames}"
+        pose (4, 4) camera-to-world; number: the frame's number in the video, for messages
+        (default: how many frames came before it)."""
+        what = f"{self.name} frame {self.frames if number is None else number}"
         self.frames += 1
         depth = check_depth(depth, self.shape, what)
         self.shape = depth.shape
@@ -163,15 +162,18 @@ class TsdfVolume:
 
 def fuse(frames: Iterable[tuple[np.ndarray, np.ndarray | None]], K: np.ndarray,
          poses: np.ndarray, config: TsdfConfig, name: str = "depth",
-         progress: bool = False) -> FusedMesh:
+         progress: bool = False, numbers: Sequence[int] | None = None) -> FusedMesh:
     """Integrate depth (and colour) frames into a TSDF volume and extract its mesh.
 
     frames: one (depth, rgb) per pose, read one at a time; depth (H, W) float32 z-depth with
         0 = invalid; rgb (H, W, 3) uint8 or None (give it for every frame or for none).
     K: (3, 3) intrinsics in the frames' pixels. poses: (N, 4, 4) camera-to-world.
+    numbers: each frame's number in the video, which messages give (default 0 to N-1).
     """
     volume = TsdfVolume(K, config, name)
     poses = check_poses(poses, name=f"{name} poses")
+    if numbers is not None and len(numbers) != len(poses):
+        raise InputError(f"{name}: {len(numbers)} frame numbers for {len(poses)} poses")
     count = 0
     frames = tqdm(frames, total=len(poses), desc=f"tsdf {name}", unit="frame",
                   disable=not progress)
@@ -180,8 +182,7 @@ def fuse(frames: Iterable[tuple[np.ndarray, np.ndarray | None]], K: np.ndarray,
         if index >= len(poses):
             raise InputError(f"{name}: more frames than the {len(poses)} poses; give one pose "
                              f"per frame")
-        if index % config.stride == 0:
-            volume.integrate(depth, rgb, poses[index])
+        volume.integrate(depth, rgb, poses[index], None if numbers is None else numbers[index])
     if count != len(poses):
         raise InputError(f"{name}: {count} frames for {len(poses)} poses; give one pose per "
                          f"frame")

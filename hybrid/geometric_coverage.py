@@ -35,7 +35,7 @@ from hybrid.coverage import (
     pair_key,
 )
 from hybrid.lumen_fit import FittedLumen
-from hybrid.types import InputError, check_poses
+from hybrid.types import InputError, check_depth, check_poses
 
 
 @dataclass(frozen=True)
@@ -132,11 +132,11 @@ def geometric_coverage(lumen: FittedLumen, poses: np.ndarray, depth: Sequence[np
     if n < T:
         raise InputError(f"{name}: {n} frames is shorter than one segment ({T} frames); "
                          f"geometric coverage needs at least one full segment")
-    first = np.asarray(depth[0])
-    if region is None:
-        region = np.ones(first.shape, dtype=bool)
-    if region.shape != first.shape:
-        raise InputError(f"{name}: image region {region.shape} differs from depth {first.shape}")
+    first = check_depth(depth[0], None, f"{name} frame 0")
+    region = np.ones(first.shape, dtype=bool) if region is None else np.asarray(region)
+    if region.dtype != bool or region.shape != first.shape:
+        raise InputError(f"{name}: the image region must be a bool mask of the depth's size "
+                         f"{first.shape}, got {region.dtype} {region.shape}")
     cells = tube_cells(lumen, config.cell_length_cm, config.cells_around)
     camera_ell, _ = Lumen(lumen.points, name=f"{name} lumen").project(poses[:, :3, 3])
     row_radius = np.interp(cells.ell, lumen.arclength, lumen.radius)
@@ -159,10 +159,7 @@ def geometric_coverage(lumen: FittedLumen, poses: np.ndarray, depth: Sequence[np
         points = cells.points[a:b].reshape(-1, 3)
         tolerance = np.repeat(config.occlusion_tolerance * row_radius[a:b], len(cells.theta))
         for f in range(start, start + T):
-            d = np.asarray(depth[f], dtype=np.float32)
-            if d.shape != first.shape or not np.isfinite(d).all():
-                raise InputError(f"{name}: depth of frame {f} is {d.shape} or not finite; "
-                                 f"expected finite {first.shape} maps (0 = invalid)")
+            d = check_depth(depth[f], first.shape, f"{name} frame {f}")
             R, p = poses[f, :3, :3], poses[f, :3, 3]
             xc = (points - p) @ R
             z = xc[:, 2]

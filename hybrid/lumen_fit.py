@@ -21,10 +21,12 @@ back-projected depth) in one unit, and returns a `FittedLumen` parametrised by a
 2. The surface is thinned to one point per small cube (`thinning`), so that each part of the
    wall counts once however often and closely the video saw it.
 3. Cross-sections: at each station, the surface points in a slab one spacing thick normal to
-   the path are projected into its plane and fitted with a circle (algebraic fit, outliers
-   beyond 3 MADs trimmed); a section whose points cover less than half of the circle, or
-   whose circle does not enclose the station (inside the lumen), is skipped and filled in
-   from its neighbours.
+   the path are projected into its plane and fitted with a circle (the algebraic fit refined
+   by least squares on the points' distances to the circle, outliers beyond 3 MADs trimmed);
+   a section whose inliers occupy fewer than half of the twelve 30° sectors around its centre
+   (an arc under 120-150°), or whose circle does not enclose the station (inside the lumen),
+   is skipped and filled in from its neighbours; only a gap of one station counts as
+   fitted.
 4. The centres and radii go through a running median along the stations (one bad section,
    often at the ragged end of the surface, is outvoted), then are smoothed; the path is
    replaced by the fitted centreline and steps 3-4 run again.
@@ -42,6 +44,7 @@ from pathlib import Path
 import numpy as np
 import open3d as o3d
 from scipy.ndimage import gaussian_filter1d, median_filter
+from scipy.optimize import least_squares
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import minimum_spanning_tree, shortest_path
 from scipy.spatial import cKDTree
@@ -75,7 +78,8 @@ class LumenFitConfig:
     min_points: int = 30
     """Fewest surface points for a cross-section fit."""
     min_arc_bins: int = 6
-    """Fewest occupied 30° sectors (of 12) for a cross-section fit: half a circle."""
+    """Fewest 30° sectors (of 12) around the fitted centre that its inliers must occupy for
+    a cross-section fit: half of them, an arc of at least 120-150°."""
     iterations: int = 2
     """Fit passes; each pass after the first uses the previous centreline as the path."""
     withdrawal: bool = True
@@ -111,8 +115,23 @@ class FittedLumen:
     points: np.ndarray
     radius: np.ndarray
     fitted: np.ndarray | None = None
-    """(M,) bool: the radius was fitted to the surface there (False where the centreline is
-    continued straight beyond it); None: everywhere."""
+    """(M,) bool: the radius was fitted to the surface there, or at a station next to one that
+    was (False where the centreline is continued straight beyond the surface, or interpolated
+    across a longer stretch without usable cross-sections); None: everywhere."""
+
+    def __post_init__(self) -> None:
+        self.points = np.asarray(self.points, dtype=np.float64)
+        self.radius = np.asarray(self.radius, dtype=np.float64)
+        m = len(self.points)
+        if self.points.ndim != 2 or self.points.shape[1:] != (3,) or m == 0 \
+                or self.radius.shape != (m,) \
+                or (self.fitted is not None and np.shape(self.fitted) != (m,)):
+            raise InputError(f"a lumen needs (M, 3) centreline points with M radii (and M "
+                             f"fitted flags), got {self.points.shape}, {self.radius.shape}")
+        if not (np.isfinite(self.points).all() and np.isfinite(self.radius).all()
+                and (self.radius > 0).all()):
+            raise InputError("a lumen's centreline points must be finite and its radii finite "
+                             "and positive")
 
     @property
     def arclength(self) -> np.ndarray:
@@ -129,18 +148,24 @@ class FittedLumen:
     def load(cls, path: Path) -> FittedLumen:
         data = json.loads(Path(path).read_text())
         fitted = data.get("fitted")
-        return cls(np.asarray(data["points"], float), np.asarray(data["radius"], float),
-                   None if fitted is None else np.asarray(fitted, bool))
+        try:
+            return cls(np.asarray(data["points"], float), np.asarray(data["radius"], float),
+                       None if fitted is None else np.asarray(fitted, bool))
+        except InputError as err:
+            raise InputError(f"{path}: {err}; delete it to fit the lumen again") from err
 
 
 def fit_lumen(poses: np.ndarray, surface: np.ndarray, fps: float = 30.0,
               config: LumenFitConfig = LumenFitConfig(), name: str = "reconstruction",
-              along: np.ndarray | None = None) -> FittedLumen:
+              along: np.ndarray | None = None, ahead_at_least: float = 0.0) -> FittedLumen:
     """Centreline and radius profile of the surface around the camera path (see module doc).
 
     along: (N,) each camera's place along the colon, growing towards its deep end (e.g. its ℓ
     on a lumen fitted to the whole video), which orients the fit; None: the cameras' order in
-    time, read backwards on a withdrawal (config.withdrawal)."""
+    time, read backwards on a withdrawal (config.withdrawal).
+    ahead_at_least: the least length, in the surface's unit, of the straight continuation
+    beyond the deep end (config.extend × r0 where that is longer); with a metric surface, the
+    look-ahead band's reach, so that the tube covers every camera's band."""
     poses = check_poses(poses, name=f"{name} poses")
     if along is None:
         along = np.arange(len(poses), dtype=np.float64) * (-1.0 if config.withdrawal else 1.0)
@@ -165,32 +190,34 @@ def fit_lumen(poses: np.ndarray, surface: np.ndarray, fps: float = 30.0,
     spacing = config.spacing * r0
     stations, follows = _stations(centres, spacing, _REVISIT * r0)
     path = stations if len(stations) < 4 else _ordered(stations, follows, spacing, centres,
-                                                          along)
+                                                          along, name)
     if len(path) < 4:
         raise InputError(f"{name}: the camera's path passes fewer than 4 cross-sections "
                          f"{spacing:.3g} apart (it moves {_length(centres):.3g} units in all, "
                          f"some of them back over its path); too short for a lumen fit")
-    ahead = round(config.extend / config.spacing)
+    ahead = max(round(config.extend / config.spacing), int(np.ceil(ahead_at_least / spacing)))
     behind = round(config.extend_back / config.spacing)
     path = _extended(path, ahead, behind, spacing)
     tree = cKDTree(surface)
     sigma = config.smoothing_stations
     for _ in range(config.iterations):
-        centre, radius = _cross_sections(path, surface, tree, spacing, config.reach * r0, config)
+        centre, radius, on_wall = _cross_sections(path, surface, tree, spacing,
+                                                  config.reach * r0, config, name)
         fitted = _resample(FittedLumen(gaussian_filter1d(centre, sigma, axis=0, mode="nearest"),
-                                       gaussian_filter1d(radius, sigma, mode="nearest")), spacing)
+                                       gaussian_filter1d(radius, sigma, mode="nearest"),
+                                       on_wall), spacing)
         if len(fitted.points) < 2:  # no direction to go on in, nor a tube to cut into cells
             raise InputError(f"{name}: the surface gives usable cross-sections of the lumen over "
                              f"less than half a station ({0.5 * spacing:.3g}); too little wall "
                              f"around the camera path for a lumen fit")
         # Where the surface ends, the centreline goes on straight with the end radius, and
         # past the cameras beyond it (the wall beside the last ones is rarely seen).
-        before, after = _past_cameras(fitted.points, centres, spacing)
+        before, after = _past_cameras(fitted.points, poses[:, :3, 3], spacing)
         ends = (behind + before, ahead + after)
         lumen = FittedLumen(_extended(fitted.points, ahead=ends[1], behind=ends[0],
                                       spacing=spacing),
                             np.pad(fitted.radius, ends, mode="edge"),
-                            np.pad(np.ones(len(fitted.radius), bool), ends))
+                            np.pad(fitted.fitted, ends))
         path = lumen.points
     return lumen
 
@@ -256,7 +283,7 @@ def _stations(centres: np.ndarray, spacing: float, revisit: float
 
 
 def _ordered(stations: np.ndarray, follows: np.ndarray, spacing: float, centres: np.ndarray,
-             along: np.ndarray) -> np.ndarray:
+             along: np.ndarray, name: str = "reconstruction") -> np.ndarray:
     """The stations in order along the lumen, oriented so that ℓ grows as the cameras' places
     `along` the colon do (towards its deep end).
 
@@ -292,8 +319,8 @@ def _ordered(stations: np.ndarray, follows: np.ndarray, spacing: float, centres:
         chain.append(int(previous[chain[-1]]))
     path = stations[chain]
     if np.ptp(along) == 0:
-        raise InputError("the cameras' places along the colon are all the same (`along`): no "
-                         "direction to orient the lumen by")
+        raise InputError(f"{name}: the cameras' places along the colon are all the same "
+                         f"(`along`): no direction to orient the lumen by")
     nearest = cKDTree(path).query(centres)[1]
     return path[::-1] if np.polyfit(along, nearest, 1)[0] < 0 else path
 
@@ -316,8 +343,8 @@ def _end_directions(path: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def _past_cameras(line: np.ndarray, cameras: np.ndarray, spacing: float) -> tuple[int, int]:
     """Stations to add before the line's start and after its end, continuing it straight, so
-    that it reaches past the cameras (smoothed centres) nearest to either end, which would
-    otherwise share the end's ℓ. Cameras that turn a bend beyond the fitted wall are not
+    that it reaches past the cameras nearest to either end, which would otherwise share the
+    end's ℓ. Cameras that turn a bend beyond the fitted wall are not
     followed round it: the continuation is straight."""
     nearest = cKDTree(line).query(cameras)[1]
     head, tail = _end_directions(line)
@@ -332,9 +359,12 @@ def _tangents(path: np.ndarray) -> np.ndarray:
 
 
 def _cross_sections(path: np.ndarray, surface: np.ndarray, tree: cKDTree, spacing: float,
-                    reach: float, config: LumenFitConfig) -> tuple[np.ndarray, np.ndarray]:
+                    reach: float, config: LumenFitConfig, name: str = "reconstruction"
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Circle centre and radius at the stations from the first to the last fitted one, gaps
-    between them filled by interpolation, then a running median along the stations."""
+    between them filled by interpolation, then a running median along the stations; and
+    whether each station was fitted to the surface, or lies next to one that was (a gap of
+    one station is bridged; a longer one is not wall the fit saw)."""
     tangents = _tangents(path)
     centre = np.full_like(path, np.nan)
     radius = np.full(len(path), np.nan)
@@ -351,31 +381,39 @@ def _cross_sections(path: np.ndarray, surface: np.ndarray, tree: cKDTree, spacin
         fit = _circle(xy)
         if fit is None:
             continue
-        (cx, cy), r = fit
+        (cx, cy), r, inliers = fit
         if np.hypot(cx, cy) >= r:  # the station (on the path, in the lumen) lies outside
             continue
-        angles = np.arctan2(xy[:, 1] - cy, xy[:, 0] - cx)
+        angles = np.arctan2(xy[inliers, 1] - cy, xy[inliers, 0] - cx)
         sectors = np.unique(((angles + np.pi) / (np.pi / 6)).astype(int) % 12)
         if len(sectors) >= config.min_arc_bins:
             centre[i], radius[i] = p + cx * u + cy * v, r
     good = np.flatnonzero(np.isfinite(radius))
     if len(good) < 2:
-        raise InputError("the reconstruction gives no usable cross-section of the lumen (too "
-                         "few surface points around the camera path); check depth and poses")
+        raise InputError(f"{name}: no usable cross-section of the lumen (too few surface "
+                         f"points around the camera path, or only short arcs of the wall); "
+                         f"check depth and poses")
     index = np.arange(good[0], good[-1] + 1)  # from the first to the last fitted station
+    near = np.isfinite(radius)
+    near[1:] |= near[:-1].copy()
+    near[:-1] |= np.isfinite(radius)[1:]
+    on_wall = near[index]
     centre = np.stack([np.interp(index, good, centre[good, k]) for k in range(3)], axis=1)
     radius = np.interp(index, good, radius[good])
     if len(index) < config.median_stations:  # too short to outvote anything
-        return centre, radius
+        return centre, radius, on_wall
     # Mirrored at the ends, so that a bad end section is outvoted too; an end centre then
     # takes its neighbour's place, shortening the centreline by up to a station.
     size = (config.median_stations, 1)
     return (median_filter(centre, size=size, mode="mirror"),
-            median_filter(radius, size=size[0], mode="mirror"))
+            median_filter(radius, size=size[0], mode="mirror"), on_wall)
 
 
-def _circle(xy: np.ndarray, rounds: int = 3) -> tuple[np.ndarray, float] | None:
-    """Algebraic (Kåsa) circle fit with outliers beyond 3 MADs trimmed."""
+def _circle(xy: np.ndarray, rounds: int = 3) -> tuple[np.ndarray, float, np.ndarray] | None:
+    """Circle fit with outliers beyond 3 MADs trimmed: centre, radius and the inliers (a
+    mask). Each round starts from the algebraic (Kåsa) fit, which on a noisy partial arc
+    draws the circle too small, and refines it by least squares on the points' distances to
+    the circle (scipy's least_squares)."""
     keep = np.ones(len(xy), dtype=bool)
     result = None
     for _ in range(rounds):
@@ -385,20 +423,35 @@ def _circle(xy: np.ndarray, rounds: int = 3) -> tuple[np.ndarray, float] | None:
         A = np.column_stack([pts, np.ones(len(pts))])
         b = -(pts ** 2).sum(axis=1)
         (d, e, f), *_ = np.linalg.lstsq(A, b, rcond=None)
-        centre = np.array([-d / 2, -e / 2])
-        r2 = centre @ centre - f
-        if not r2 > 0:
+        start = np.array([-d / 2, -e / 2])
+        if not start @ start - f > 0:
             return result
-        result = (centre, float(np.sqrt(r2)))
-        residual = np.abs(np.linalg.norm(xy - centre, axis=1) - result[1])
+        fit = least_squares(_off_circle, np.append(start, np.sqrt(start @ start - f)),
+                            jac=_off_circle_jacobian, method="lm", args=(pts,))
+        centre, radius = fit.x[:2], float(abs(fit.x[2]))
+        residual = np.abs(np.linalg.norm(xy - centre, axis=1) - radius)
         mad = np.median(residual[keep]) + 1e-12
+        result = (centre, radius, keep)
         keep = residual <= 3 * 1.4826 * mad
     return result
 
 
+def _off_circle(circle: np.ndarray, pts: np.ndarray) -> np.ndarray:
+    """Each point's distance from the circle (cx, cy, r)."""
+    return np.linalg.norm(pts - circle[:2], axis=1) - circle[2]
+
+
+def _off_circle_jacobian(circle: np.ndarray, pts: np.ndarray) -> np.ndarray:
+    towards = pts - circle[:2]
+    distance = np.linalg.norm(towards, axis=1, keepdims=True).clip(1e-12)
+    return np.column_stack([-towards / distance, -np.ones(len(pts))])
+
+
 def _resample(lumen: FittedLumen, spacing: float) -> FittedLumen:
-    """The lumen resampled every `spacing` of its own arc length."""
+    """The lumen resampled every `spacing` of its own arc length (fitted: where the nearer
+    of the two stations around a point was)."""
     ell = lumen.arclength
     at = np.append(np.arange(0.0, ell[-1] - 0.5 * spacing, spacing), ell[-1])
+    fitted = None if lumen.fitted is None else np.interp(at, ell, lumen.fitted) >= 0.5
     return FittedLumen(np.stack([np.interp(at, ell, lumen.points[:, k]) for k in range(3)], 1),
-                       np.interp(at, ell, lumen.radius))
+                       np.interp(at, ell, lumen.radius), fitted)

@@ -19,8 +19,13 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from fusion.tsdf import FusedMesh, TsdfConfig, fuse
+from hybrid.coverage import DELTA_PAIRS_CM
 from hybrid.lumen_fit import FittedLumen, LumenFitConfig, fit_lumen, metric_scale
 from hybrid.types import InputError, check_poses, sampling_stride
+
+LOOK_AHEAD_CM = max(d1 for _, d1 in DELTA_PAIRS_CM)
+"""The farthest reach of a look-ahead band: the metric lumen goes on at least this far
+beyond its deep end, so that no camera's band is cut short by the end of the tube."""
 
 
 @dataclass(frozen=True)
@@ -94,9 +99,11 @@ def reconstruct(depth: Sequence[np.ndarray], K: np.ndarray, poses: np.ndarray,
                 rgb: Sequence[np.ndarray] | None = None, region: np.ndarray | None = None,
                 config: ReconstructionConfig = ReconstructionConfig(),
                 scale: float | None = None, fps: float = 30.0, name: str = "video",
-                progress: bool = False, along: np.ndarray | None = None) -> Reconstruction:
+                progress: bool = False, along: np.ndarray | None = None,
+                first_frame: int = 0) -> Reconstruction:
     """Scale, mesh and lumen of one video (see the module docstring); along: each frame's
-    place along the colon, which orients the lumen (fit_lumen)."""
+    place along the colon, which orients the lumen (fit_lumen); first_frame: the first
+    frame's number in the video (for a window of it), which messages give."""
     poses = check_poses(poses, name=f"{name} poses")
     if len(depth) != len(poses) or (rgb is not None and len(rgb) != len(poses)):
         raise InputError(f"{name}: {len(depth)} depth maps, {len(poses)} poses"
@@ -117,6 +124,8 @@ def reconstruct(depth: Sequence[np.ndarray], K: np.ndarray, poses: np.ndarray,
     fused = range(0, len(poses), config.tsdf_stride)  # frames not fused are not even read
     frames = ((scaled[i], None if rgb is None else rgb[i]) for i in fused)
     tsdf = TsdfConfig(voxel_size=config.voxel_cm, depth_max=config.depth_max_cm)
-    mesh = fuse(frames, K, metric[fused], tsdf, name=name, progress=progress)
-    lumen = fit_lumen(metric, mesh.vertices, fps, config.lumen, name=name, along=along)
+    mesh = fuse(frames, K, metric[fused], tsdf, name=name, progress=progress,
+                numbers=[first_frame + i for i in fused])
+    lumen = fit_lumen(metric, mesh.vertices, fps, config.lumen, name=name, along=along,
+                      ahead_at_least=LOOK_AHEAD_CM)
     return Reconstruction(metric, float(scale), mesh, lumen)

@@ -92,7 +92,8 @@ def local_segment_coverage(depth: Sequence[np.ndarray], K: np.ndarray, poses: np
         try:
             rec = reconstruct(_Window(depth, first, last), K, local, region=region,
                               config=reconstruction, scale=scale, fps=fps, name=label,
-                              along=None if along is None else along[first:last])
+                              along=None if along is None else along[first:last],
+                              first_frame=first)
             result = geometric_coverage(
                 rec.lumen, rec.poses[start - first:stop - first],
                 ScaledDepth(_Window(seen, start, stop), rec.scale, region), K, region, config,

@@ -269,8 +269,9 @@ class CoverageModel(nn.Module):
                            ) -> torch.Tensor:
         """The per-segment network's pooled layer (S, len(MIRRORS), C) for the windows
         [s, s + T) of one video's (N, len(MIRRORS), F) features, one row per mirror view.
-        `batch` windows per pass: a 30-minute video's 180 segments raised the peak memory by
-        548 MiB at 256 and by 159 at 32, and ran faster at 32 (docs/benchmarks.md, "Where the
+        `batch` windows per pass bounds the memory where one video has many: training,
+        evaluation and `c2d2 adapt` read overlapping windows every 30 frames (`c2d2 adapt` on
+        a 30-minute video: 162 MiB at 32 against 797 at 256; docs/benchmarks.md, "Where the
         peak is")."""
         T, F, M = self.config.segment_frames, self.config.feature_size, len(MIRRORS)
         if features.ndim != 3 or features.shape[1:] != (M, F):

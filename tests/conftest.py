@@ -9,6 +9,7 @@ z axis from z = 0 to z = L (so ℓ* of any point is its z, clipped to [0, L]).
 from __future__ import annotations
 
 import os
+import re
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -203,3 +204,9 @@ def write_video(path: Path, frames: list[np.ndarray], fps: float) -> Path:
         writer.write(cv2.cvtColor(frame, cv2.COLOR_RGB2BGR))
     writer.release()
     return path
+
+
+def unboxed(text: str) -> str:
+    """A command's error output as one line: the frame Typer draws around a usage error and
+    its line breaks removed."""
+    return " ".join(re.sub("[│╭╮╰╯─]", " ", text).split())

@@ -182,9 +182,12 @@ def test_depth_runs_on_a_folder_of_images(tmp_path, tiny_checkpoint):
     assert sorted(p.name for p in (out / "depth").iterdir()) == [
         "000000.npy", "000001.npy", "000002.npy"]
     assert np.load(out / "depth" / "000000.npy").shape == (64, 96)
-    assert np.load(out / "relative_poses.npy").shape == (2, 4, 4)
+    relative = np.load(out / "relative_poses.npy")
     poses = np.load(out / "poses.npy")
-    assert poses.shape == (3, 4, 4) and np.array_equal(poses[0], np.eye(4))
+    assert relative.shape == (2, 4, 4) and poses.shape == (3, 4, 4)
+    # relative[t] maps camera t's points into camera t+1: P[t+1] @ relative[t] = P[t]
+    assert np.array_equal(poses[0], np.eye(4))
+    np.testing.assert_allclose(poses[1:] @ relative, poses[:-1], atol=1e-9)
     intrinsics = json.loads((out / "intrinsics.json").read_text())
     assert (intrinsics["width"], intrinsics["height"], intrinsics["pairs"]) == (120, 100, 2)
     assert sorted(p.name for p in out.iterdir()) == [

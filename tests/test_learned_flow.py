@@ -55,6 +55,8 @@ def test_flow_error_is_zero_at_agreement_and_cauchy_off_it():
 
 
 def test_batch_flows_match_dis_flow_per_pair():
+    """b is a moved 2 pixels left: a pixel of a shows what b shows 2 to its left, and the
+    reverse; each pair's flow is DIS flow's on that pair."""
     a, b = texture(seed=1), texture(seed=1)[:, list(range(2, 128)) + [127, 127]]
     images = [torch.from_numpy(x).permute(2, 0, 1)[None].float() / 255 for x in (a, b)]
     flows, trusted = batch_flows(torch.cat([images[0], images[1]]),
@@ -64,6 +66,10 @@ def test_batch_flows_match_dis_flow_per_pair():
         expected, ok = dis_flow(*pair)
         np.testing.assert_array_equal(flows[k].numpy(), expected)
         np.testing.assert_array_equal(trusted[k].numpy(), ok)
+    inner = (slice(12, -12), slice(12, -12))
+    for k, shift in enumerate([(-2.0, 0.0), (2.0, 0.0)]):
+        error = np.linalg.norm(flows[k].numpy()[inner] - shift, axis=-1)
+        assert np.median(error[trusted[k].numpy()[inner]]) < 0.25
 
 
 def test_the_flow_term_needs_flows_and_enters_the_total():

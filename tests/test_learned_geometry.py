@@ -80,11 +80,15 @@ def intrinsics(scale: float = 1.0) -> torch.Tensor:
 
 @pytest.fixture(scope="module")
 def scene():
+    """The rendered views, with torch on one thread for this module's tests (restored after
+    them, so that the rest of the session keeps its own count)."""
+    previous = torch.get_num_threads()
     torch.set_num_threads(1)
     target, target_depth, hit = render(np.eye(3), np.zeros(3))
     source, _, _ = render(R_TRUE, T_TRUE)
-    return {"target": as_t(target)[None], "depth": as_t(target_depth)[None, None],
-            "source": as_t(source)[None], "hit": hit}
+    yield {"target": as_t(target)[None], "depth": as_t(target_depth)[None, None],
+           "source": as_t(source)[None], "hit": hit}
+    torch.set_num_threads(previous)
 
 
 def interior(valid: torch.Tensor) -> torch.Tensor:

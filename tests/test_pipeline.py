@@ -20,11 +20,12 @@ import cv2
 import numpy as np
 import pytest
 import torch
-from conftest import write_video
+from conftest import unboxed, write_video
 from test_learned_cli import runner
 
 from hybrid import workdir as W
 from hybrid.cli import app
+from hybrid.coverage import Lumen
 from hybrid.crosscheck import combined_coverage, cross_check
 from hybrid.dataset import Procedure
 from hybrid.evaluate import summarise
@@ -61,13 +62,15 @@ support), their difference, both 3-class labels, agreement, the combined coverag
 assessable (and its usable fraction)."""
 
 # Tolerances of |branch - truth| per segment, each about twice the branch's mean absolute error
-# on held-out simulated procedures (learned segment MAE 0.045-0.105, docs/coverage.md; geometric
-# with learned inputs on short procedures 0.053, docs/geometric.md): they catch a gross failure
-# (wrong segments, lost scale, a broken checkpoint), not a small loss of accuracy. Measured with
-# the checkpoints shipped 2026-11-23 (run_video on SIM with seeds 0, 3 and 6): seed 0 (used
-# here) truth 0.866, 0.754, learned 0.879, 0.814, geometric 0.821, 0.835; seed 3 stays within
-# 0.11 on both branches; seed 6 (truth 0.31, 0.77) reads 0.40, 0.65 learned and 0.31, 0.48
-# geometric.
+# on held-out simulated procedures (learned segment MAE 0.057-0.105, docs/coverage.md and
+# docs/pipeline.md; geometric with learned inputs 0.075 on data/test's short procedures and
+# 0.083-0.084 on data/heldout and data/heldout2, docs/geometric.md): they catch a gross failure
+# (wrong segments, lost scale, a broken checkpoint), not a small loss of accuracy, and as a
+# maximum over two segments they are not a bound on the MAE. Seed 0 (used here), with the
+# checkpoints shipped since the forty-fourth session and the lumen fit of the fifty-fourth:
+# truth 0.866, 0.754, learned 0.863, 0.805, geometric 0.825, 0.813. With the checkpoints of
+# 2026-11-23 seed 3 stayed within 0.11 on both branches, and seed 6 (truth 0.31, 0.77) read
+# 0.40, 0.65 learned and 0.31, 0.48 geometric (0.29 off: this test would fail on it).
 # Longer, excursion-heavy procedures fail far more (docs/geometric.md, docs/pipeline.md).
 LEARNED_TOLERANCE = 0.2
 GEOMETRIC_TOLERANCE = 0.15
@@ -449,9 +452,10 @@ def test_segments_read_one_at_a_time_equal_the_whole_videos_windows(pipeline_run
     assert [s["coverage"] for s in saved] == pytest.approx(whole.tolist(), abs=1e-6)
 
 
-def test_segment_windows_are_oriented_by_the_whole_videos_lumen(pipeline_run, monkeypatch):
-    """work_segments gives each frame its ℓ on the whole video's lumen, which falls over
-    this withdrawal, to orient the windows' lumens."""
+def test_segment_windows_are_oriented_by_the_whole_videos_lumen(pipeline_run, procedure,
+                                                                 monkeypatch):
+    """work_segments gives each frame its ℓ on the whole video's lumen, to orient the windows'
+    lumens: it follows the frame's true ℓ on the simulator's centreline."""
     import hybrid.pipeline as P
 
     out, _ = pipeline_run
@@ -464,7 +468,9 @@ def test_segment_windows_are_oriented_by_the_whole_videos_lumen(pipeline_run, mo
     monkeypatch.setattr(P, "local_segment_coverage", record)
     work_segments(out, RunConfig())
     along = given["along"]
-    assert along.shape == (200,) and np.polyfit(np.arange(200), along, 1)[0] < 0
+    truth, _ = Lumen(procedure.lumen).project(procedure.poses[:200, :3, 3])
+    assert along.shape == (200,)
+    assert np.corrcoef(along, truth)[0, 1] > 0.99
 
 
 def test_geometric_stages_repeat_exactly(pipeline_run, procedure, tmp_path):
@@ -628,23 +634,34 @@ def test_eval_refuses_a_procedure_given_twice(procedure, tmp_path):
     assert not (tmp_path / "eval").exists()
 
 
-@pytest.mark.parametrize("command", [
-    ["simulate", "--out", "{tmp}/sim", "--seed", "-1"],
-    ["train-depth", "--data", "{proc}", "--out", "{tmp}/run", "--steps", "0"],
-    ["train-depth", "--data", "{proc}", "--out", "{tmp}/run", "--batch-size", "0"],
-    ["train-depth", "--data", "{proc}", "--out", "{tmp}/run", "--set", "seed=-1"],
-    ["eval-depth", "--data", "{proc}", "--out", "{tmp}/missing/metrics.json"],
-    ["eval-depth", "--data", "{proc}", "--data", "{proc}", "--out", "{tmp}/metrics.json"],
+@pytest.mark.parametrize("command, says", [
+    (["simulate", "--out", "{tmp}/sim", "--seed", "-1"],
+     ["Invalid value for '--seed'", "greater than or equal to 0"]),
+    (["train-depth", "--data", "{proc}", "--out", "{tmp}/run", "--steps", "0"],
+     ["Invalid value for '--steps'", "greater than or equal to 1"]),
+    (["train-depth", "--data", "{proc}", "--out", "{tmp}/run", "--batch-size", "0"],
+     ["Invalid value for '--batch-size'", "greater than or equal to 1"]),
+    (["train-depth", "--data", "{proc}", "--out", "{tmp}/run", "--set", "seed=-1"],
+     ["seed >= 0", "got 6000, 8 and -1"]),
+    (["eval-depth", "--data", "{proc}", "--out", "{tmp}/missing/metrics.json"],
+     ["folder for --out does not exist", "{tmp}/missing"]),
+    (["eval-depth", "--data", "{proc}", "--data", "{proc}", "--out", "{tmp}/metrics.json"],
+     ["--data gives {name} more than once"]),
 ])
-def test_numbers_out_of_range_and_a_missing_out_folder_are_refused_up_front(command, procedure,
+def test_numbers_out_of_range_and_a_missing_out_folder_are_refused_up_front(command, says,
+                                                                             procedure,
                                                                              tmp_path):
-    """Each stops before any work, with exit status 2 and no traceback (a negative seed was a
-    traceback, 0 steps wrote an untrained model, eval-depth's --out failed after the whole
-    evaluation, and a procedure given twice to eval-depth was evaluated twice)."""
+    """Each stops before any work, with exit status 2 and a message naming the option or the
+    input (a negative seed was a traceback, 0 steps wrote an untrained model, eval-depth's
+    --out failed after the whole evaluation, and a procedure given twice to eval-depth was
+    evaluated twice)."""
     args = [a.format(tmp=tmp_path, proc=procedure.path) for a in command]
     result = runner.invoke(app, args)
     assert result.exit_code == 2, result.output
-    assert "Traceback" not in result.output
+    text = unboxed(result.stderr)
+    for part in says:
+        name = f"{procedure.path.parent.name}/{procedure.path.name}"
+        assert part.format(tmp=tmp_path, proc=procedure.path, name=name) in text, text
     assert sorted(p.name for p in tmp_path.iterdir()) == []
 
 
@@ -927,8 +944,14 @@ def test_batch_resumes_after_a_kill_and_isolates_a_bad_file(frames, tmp_path, mo
     for name in ("a_first.avi", "b_second.avi"):
         assert (rows[name]["frames"], rows[name]["segments"]) == ("110", "1")
         assert rows[name]["error"] == "" and rows[name]["warnings"] == ""
-        assert 0 <= float(rows[name]["mean_learned"]) <= 1
-        assert 0 <= float(rows[name]["mean_geometric"]) <= 1
+        table = json.loads((out / name / W.COVERAGE_JSON).read_text())
+        segments = table["segments"]
+        for column, key in (("mean_learned", "learned"), ("mean_geometric", "geometric")):
+            assert float(rows[name][column]) == round(np.mean([s[key] for s in segments]), 4)
+        assert float(rows[name]["agreement"]) == round(table["agreement"], 4)
+        assert int(rows[name]["deficient_segments"]) == sum(s["deficient"] for s in segments)
+        assert int(rows[name]["not_assessable"]) == sum(not s["assessable"] for s in segments)
+        assert float(rows[name]["seconds_of_video"]) == round(110 / FPS, 2)
     assert "c_notes.mp4" in rows["c_notes.mp4"]["error"]
     error_file = out / "c_notes.mp4" / W.ERROR
     assert rows["c_notes.mp4"]["error"] in error_file.read_text()

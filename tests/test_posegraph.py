@@ -89,6 +89,27 @@ def test_velocity_factors_keep_the_gain():
         result.chained, truth)["ate"]
 
 
+@pytest.mark.parametrize("weight", [0.0, 0.25, 1.0])
+def test_velocity_factors_pull_a_bad_step_towards_the_one_before(weight):
+    """A straight path at constant speed, one step measured e too far sideways. With gap 1
+    only, each step t has its own factor (weight 1) and the velocity factor's measurement of
+    step t-1 (weight w), so least squares gives step t = (m_t + w m_(t-1)) / (1 + w): the bad
+    step keeps e / (1 + w) and the next takes w e / (1 + w). (e is a quarter of a sigma,
+    well inside the Huber threshold.)"""
+    truth = np.tile(np.eye(4), (40, 1, 1))
+    truth[:, 2, 3] = -0.1 * np.arange(40)
+    relative = np.linalg.inv(truth[1:]) @ truth[:-1]
+    error = 0.05
+    relative[20, 0, 3] += error
+    result = smooth_trajectory({1: relative}, PoseGraphConfig(skips=(1,),
+                                                              velocity_weight=weight))
+    sideways = np.diff(result.poses[:, 0, 3])
+    expected = np.zeros(39)
+    expected[20] = -error / (1 + weight)
+    expected[21] = -weight * error / (1 + weight)
+    np.testing.assert_allclose(sideways, expected, atol=1e-9)
+
+
 def test_windowed_smoothing_matches_batch():
     """A window sees at most max(skips) frames of the future, batch sees all: the estimates
     differ by a few percent of a step (measured: 0.0054 for steps of 0.158)."""

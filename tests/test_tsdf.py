@@ -92,9 +92,9 @@ def test_fused_mesh_carries_the_wall_colour(colored_mesh, tmp_path):
     assert [p.name for p in tmp_path.iterdir()] == ["mesh.ply"]
 
 
-def test_depth_only_fusion_has_no_colour_and_stride_skips_frames(tmp_path):
+def test_depth_only_fusion_has_no_colour(tmp_path):
     mesh = fuse(((render(p)[0], None) for p in POSES[:4]), K, POSES[:4],
-                TsdfConfig(voxel_size=0.1, depth_max=5.0, block_count=200, stride=2))
+                TsdfConfig(voxel_size=0.1, depth_max=5.0, block_count=200))
     assert mesh.colors is None
     assert FusedMesh.load(mesh.save(tmp_path / "mesh.ply")).colors is None
     assert abs(np.median(np.hypot(mesh.vertices[:, 0], mesh.vertices[:, 1])) - RADIUS) < 0.05
@@ -115,12 +115,18 @@ def test_weight_threshold_counts_frames():
         fuse([(SMALL, None)], SMALL_K, ONE, config)
 
 
-@pytest.mark.parametrize("field", ["voxel_size", "truncation_voxels", "depth_max", "stride",
-                                   "weight_threshold"])
-def test_config_rejects_bad_values(field):
-    with pytest.raises(InputError, match="TsdfConfig"):
+@pytest.mark.parametrize("field, match", [
+    ("voxel_size", "needs positive voxel_size "), ("truncation_voxels", "needs positive "
+     "truncation_voxels "), ("depth_max", "needs positive depth_max "),
+    ("block_count", "needs positive block_count "), ("weight_threshold", "needs positive values "),
+])
+def test_config_rejects_bad_values(field, match):
+    with pytest.raises(InputError, match=f"^TsdfConfig {match}"):
         TsdfConfig(**{field: -1})
-    with pytest.raises(InputError, match="block_resolution"):
+
+
+def test_config_rejects_a_block_size_that_is_not_whole():
+    with pytest.raises(InputError, match="^TsdfConfig needs positive block_resolution "):
         TsdfConfig(block_resolution=16.5)
 
 
@@ -152,5 +158,14 @@ def test_whole_numbers_and_floats_are_taken_where_open3d_wants_the_other():
 ])
 def test_bad_input_is_named(frames, K, poses, match):
     config = TsdfConfig(voxel_size=0.05, depth_max=5.0, block_count=50, weight_threshold=0.5)
-    with pytest.raises(InputError, match=match):
+    with pytest.raises(InputError, match=f"^test depth.*{match}"):
         fuse(frames, K, poses, config, name="test depth")
+
+
+def test_a_bad_frame_is_named_by_its_number_in_the_video():
+    """Fusing every 2nd frame of a video from its frame 10, the 3rd frame fused is frame 14."""
+    frames = [(SMALL, None), (SMALL, None), (np.full((16, 20), np.nan, np.float32), None)]
+    config = TsdfConfig(voxel_size=0.05, depth_max=5.0, block_count=50)
+    with pytest.raises(InputError, match="^test depth frame 14: depth has NaN"):
+        fuse(frames, SMALL_K, np.stack([np.eye(4)] * 3), config, name="test depth",
+             numbers=[10, 12, 14])
