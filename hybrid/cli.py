@@ -17,6 +17,7 @@ from hybrid.types import InputError
 
 if TYPE_CHECKING:
     from fusion.self_calibration import SelfCalibration
+    from hybrid.pipeline import RunConfig
     from learned.frames import FrameSequence
 
 Device = Annotated[str, typer.Option(envvar="C2D2_DEVICE",
@@ -45,6 +46,9 @@ ViewSelfCalibrate = Annotated[bool, typer.Option(
     "CPU cores; self_calibration.json); otherwise they run with it hidden. The geometric "
     "branch keeps the intrinsics head's K.")]
 PipelineDepth = Annotated[Path | None, typer.Option(help="Depth model (default: shipped).")]
+Insertion = Annotated[bool, typer.Option(
+    help="The video is an insertion, not a withdrawal (the look-ahead band lies where the "
+    "camera is going; both branches).")]
 PipelineCoverage = Annotated[Path | None, typer.Option(
     help="Coverage model, e.g. one adapted with `c2d2 adapt` (default: shipped); it must read "
     "the depth model's output (networks trained since 2026-11-30 record which depth model "
@@ -52,6 +56,18 @@ PipelineCoverage = Annotated[Path | None, typer.Option(
 
 app = typer.Typer(help="C2D2: detect deficient coverage in colonoscopy video.",
                   no_args_is_help=True, add_completion=False, pretty_exceptions_enable=False)
+
+
+def _direction(config: RunConfig, insertion: bool) -> RunConfig:
+    """The run's configuration for an insertion video (the lumen's ℓ and the travel cues
+    read the other way), or as it is for a withdrawal."""
+    from dataclasses import replace
+
+    if not insertion:
+        return config
+    rec = config.reconstruction
+    return replace(config, reconstruction=replace(rec, lumen=replace(rec.lumen,
+                                                                     withdrawal=False)))
 
 
 def _reports_input_errors(command):
@@ -194,26 +210,19 @@ def run(
                                               "video's size; detected if omitted.")] = None,
     depth_checkpoint: PipelineDepth = None,
     coverage_checkpoint: PipelineCoverage = None,
-    insertion: Annotated[bool, typer.Option(help="The video is an insertion, not a withdrawal "
-                                            "(the look-ahead band lies where the camera is "
-                                            "going; both branches).")] = False,
+    insertion: Insertion = False,
     segment_seconds: Annotated[float, typer.Option(help="Segment length.")] = 10.0,
     self_calibrate: ViewSelfCalibrate = False,
     device: Device = "auto",
 ):
     """The whole pipeline on one video: coverage.json/.csv, mesh.ply, maps/, report.html."""
-    from dataclasses import replace
-
     from hybrid.pipeline import Models, RunConfig, run_video
     from learned.device import pick_device
 
-    config = RunConfig(depth_checkpoint=_opt(depth_checkpoint),
-                       coverage_checkpoint=_opt(coverage_checkpoint), fps=fps,
-                       segment_seconds=segment_seconds, self_calibrate=self_calibrate)
-    if insertion:
-        rec = config.reconstruction
-        config = replace(config, reconstruction=replace(
-            rec, lumen=replace(rec.lumen, withdrawal=False)))
+    config = _direction(RunConfig(depth_checkpoint=_opt(depth_checkpoint),
+                                  coverage_checkpoint=_opt(coverage_checkpoint), fps=fps,
+                                  segment_seconds=segment_seconds,
+                                  self_calibrate=self_calibrate), insertion)
     result = run_video(video, out, config, Models.load(config, pick_device(device)),
                        region=_read_mask(mask), echo=typer.echo)
     table = json.loads((out / "coverage.json").read_text())
@@ -665,6 +674,9 @@ def adapt(
                                                           "shipped one).")] = None,
     segment_seconds: Annotated[float, typer.Option(help="Segment length, as `c2d2 run` will "
                                                    "use it.")] = 10.0,
+    insertion: Annotated[bool, typer.Option(
+        help="The target videos are insertions, as `c2d2 run --insertion` will read them (the "
+        "travel cues, whose statistics CORAL aligns, read the other way).")] = False,
     source: Annotated[list[Path] | None, typer.Option(
         help="Synthetic videos or procedures the model was NOT trained on: their windows "
              "replace the training windows as CORAL's source statistics.")] = None,
@@ -694,9 +706,10 @@ def adapt(
 
     if not out.parent.is_dir():
         raise InputError(f"folder for --out does not exist: {out.parent}")
-    config = RunConfig(depth_checkpoint=_opt(depth_checkpoint),
-                       coverage_checkpoint=str(model or _shipped_coverage()),
-                       segment_seconds=segment_seconds, self_calibrate=self_calibrate)
+    config = _direction(RunConfig(depth_checkpoint=_opt(depth_checkpoint),
+                                  coverage_checkpoint=str(model or _shipped_coverage()),
+                                  segment_seconds=segment_seconds,
+                                  self_calibrate=self_calibrate), insertion)
     models = Models.load(config, pick_device(device))
     T, stride = models.coverage.config.segment_frames, models.coverage.config.segment_stride
 

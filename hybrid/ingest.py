@@ -122,7 +122,7 @@ def ingest(path: Path, size: tuple[int, int], frames_out: Path, region: np.ndarr
         cut = image[crop.y0:crop.y0 + crop.height, crop.x0:crop.x0 + crop.width]
         return cv2.resize(cut, (width, height), interpolation=interpolation)
 
-    small_region = fit(region.astype(np.uint8), cv2.INTER_NEAREST).astype(bool)
+    small_region = fit(region.astype(np.uint8), cv2.INTER_NEAREST_EXACT).astype(bool)
     # The Laplacian at the region's edge reads the step to the black border, also where the
     # region meets the frame's edge: keep it out.
     sharpness_region = cv2.erode(small_region.astype(np.uint8), np.ones((5, 5), np.uint8),

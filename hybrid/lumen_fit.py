@@ -23,8 +23,8 @@ back-projected depth) in one unit, and returns a `FittedLumen` parametrised by a
 3. Cross-sections: at each station, the surface points in a slab one spacing thick normal to
    the path are projected into its plane and fitted with a circle (the algebraic fit refined
    by least squares on the points' distances to the circle, outliers beyond 3 MADs trimmed);
-   a section whose inliers occupy fewer than half of the twelve 30° sectors around its centre
-   (an arc under 120-150°), or whose circle does not enclose the station (inside the lumen),
+   a section whose inliers occupy fewer than 5 of the twelve 30° sectors around its centre
+   (an arc under 90-120°), or whose circle does not enclose the station (inside the lumen),
    is skipped and filled in from its neighbours; only a gap of one station counts as
    fitted.
 4. The centres and radii go through a running median along the stations (one bad section,
@@ -77,9 +77,10 @@ class LumenFitConfig:
     """Gaussian smoothing of the fitted centres and radii, in stations."""
     min_points: int = 30
     """Fewest surface points for a cross-section fit."""
-    min_arc_bins: int = 6
+    min_arc_bins: int = 5
     """Fewest 30° sectors (of 12) around the fitted centre that its inliers must occupy for
-    a cross-section fit: half of them, an arc of at least 120-150°."""
+    a cross-section fit: 5, an arc of at least 90-120°, on which the distance fit's radius is
+    within 6% at 2 mm of noise (docs/geometric.md, "Unbiased cross-sections")."""
     iterations: int = 2
     """Fit passes; each pass after the first uses the previous centreline as the path."""
     withdrawal: bool = True

@@ -131,6 +131,10 @@ class Models:
         depth = Path(config.depth_checkpoint or SHIPPED_DEPTH)
         coverage = Path(config.coverage_checkpoint or SHIPPED_COVERAGE)
         coverage_model = load_coverage_model(coverage, device=device)
+        if coverage_model.config.input_depth == "true":
+            raise InputError(f"{coverage}: these coverage networks read the simulator's depth "
+                             f"(an ablation), which a video does not have; use networks "
+                             f"trained on the depth network's output (input_depth 'predicted')")
         reads_view = coverage_model.config.field_of_view == "true"
         if reads_view and not coverage_model.config.view_hidden:
             raise InputError(f"{coverage}: these coverage networks always read the simulator's "

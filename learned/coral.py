@@ -3,10 +3,14 @@
 The pooled layer z of the per-segment network (its second-to-last layer) is mapped by
 z -> A (z - μt) + μs with A = Cs^(1/2) Ct^(-1/2), so that on the target domain (unlabelled
 video) its mean and covariance become the synthetic training windows' μs and Cs. Both
-covariances get a small ridge (1e-5 of their mean variance), and each needs more samples (a
-window in each of its mirror views) than z has dimensions, without which its covariance is
-singular and A would blow up the directions it lacks. The source statistics can be taken
-from held-out synthetic videos instead of the training windows (`set_source`).
+covariances get a small ridge (1e-5 of their mean variance). The samples are the windows
+every segment_stride frames, each in its mirror views, but overlapping windows and the views
+of one window are far from independent: a target of fewer segments' worth of video (T frames
+each) than z has dimensions leaves its covariance near singular, and A would blow up the
+directions it lacks (five windows of one 14-s video stretched one direction 130 times and
+took coverages of 0.8 to 0), so each side needs more segments than dimensions. The source
+statistics can be taken from held-out synthetic videos instead of the training windows
+(`set_source`).
 """
 
 from __future__ import annotations
@@ -27,6 +31,11 @@ def _power(cov: np.ndarray, exponent: float) -> np.ndarray:
     return (vectors * values ** exponent) @ vectors.T
 
 
+def _covariance(rows: np.ndarray) -> np.ndarray:
+    """(C, C) covariance of (n, C) rows, also for C = 1."""
+    return np.atleast_2d(np.cov(rows, rowvar=False))
+
+
 def _ridged(cov: np.ndarray) -> np.ndarray:
     return cov + RIDGE * max(float(np.trace(cov)) / len(cov), 1e-12) * np.eye(len(cov))
 
@@ -45,28 +54,29 @@ def coral_transform(source_mean: np.ndarray, source_cov: np.ndarray, target: np.
     if not np.isfinite(target).all():
         raise InputError("target embeddings contain NaN or infinite values")
     A = _power(_ridged(np.asarray(source_cov, np.float64)), 0.5) @ _power(
-        _ridged(np.cov(target, rowvar=False)), -0.5)
+        _ridged(_covariance(target)), -0.5)
     return A, source_mean - A @ target.mean(0)
 
 
 def window_embeddings(model: CoverageModel, features: list[np.ndarray], stride: int,
                       role: str = "target") -> np.ndarray:
     """The pooled layer (n, len(MIRRORS), C) of the n windows every `stride` frames of each
-    video's features, in each mirror view; more samples than C (see the module)."""
-    T = model.config.segment_frames
+    video's features, in each mirror view, from more segments' worth of video than C (see
+    the module)."""
+    T, dims = model.config.segment_frames, model.segment.fc.in_features
     starts = [list(range(0, len(f) - T + 1, stride)) for f in features]
     if not any(starts):
         longest = max((len(f) for f in features), default=0)
         raise InputError(f"CORAL needs {role} videos of at least {T} frames (one segment); "
                          f"the longest has {longest}")
-    embedded = np.concatenate([model.segment_embeddings(f, ss).double().cpu().numpy()
-                               for f, ss in zip(features, starts, strict=True) if ss])
-    windows, views, dims = embedded.shape
-    if windows * views <= dims:
-        raise InputError(f"CORAL needs at least {dims // views + 1} {role} windows (each in its "
-                         f"{views} mirror views, more samples than the {dims} dimensions it "
-                         f"aligns), got {windows}; give more or longer videos")
-    return embedded
+    segments = sum(len(f) // T for f in features)
+    if segments <= dims:
+        raise InputError(f"CORAL needs more {role} video than {dims} segments of {T} frames "
+                         f"(the dimensions it aligns; overlapping windows and mirror views "
+                         f"are not independent samples), got {segments}; give more or longer "
+                         f"videos")
+    return np.concatenate([model.segment_embeddings(f, ss).double().cpu().numpy()
+                           for f, ss in zip(features, starts, strict=True) if ss])
 
 
 def set_source(model: CoverageModel, source_features: list[np.ndarray], stride: int) -> int:
@@ -75,7 +85,7 @@ def set_source(model: CoverageModel, source_features: list[np.ndarray], stride: 
     embedded = window_embeddings(model, source_features, stride, role="source")
     rows = embedded.reshape(-1, embedded.shape[-1])
     model.segment.source_mean.copy_(torch.from_numpy(rows.mean(0)).float())
-    model.segment.source_cov.copy_(torch.from_numpy(np.cov(rows, rowvar=False)).float())
+    model.segment.source_cov.copy_(torch.from_numpy(_covariance(rows)).float())
     model.segment.held_out_source.fill_(1.0)
     return len(embedded)
 

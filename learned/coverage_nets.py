@@ -58,7 +58,8 @@ def normalise_depth(depth: np.ndarray, region: np.ndarray, size: tuple[int, int]
                     name: str = "depth", by_median: bool = True) -> np.ndarray:
     """(N, H, W) depth and (H, W) bool region -> (N, 1, h, w) float32 per-frame net input.
 
-    by_median=False keeps the depth's own scale: log(depth).
+    by_median=False keeps the depth's own scale: log(depth), and log(median) (not 0)
+    outside the region.
     """
     depth = np.asarray(depth, dtype=np.float32)
     median = region_medians(depth, region, name)

@@ -143,8 +143,9 @@ def train_segment_net(model: CoverageModel, samples: list[ProcedureSamples],
     per-frame features ((N, len(MIRRORS), F) per procedure).
 
     Each window is taken in one of its mirror views and reversed in time at random (coverage
-    depends on neither). Sets the feature standardisation and the CORAL source statistics from
-    the training windows (all mirror views).
+    depends on neither). Sets the feature standardisation from every frame of the training
+    procedures and the CORAL source statistics from the training windows (all mirror
+    views).
     """
     config, net, device = model.config, model.segment, device_of(model)
     every = np.concatenate(features).reshape(-1, config.feature_size)
@@ -192,7 +193,7 @@ def train_segment_net(model: CoverageModel, samples: list[ProcedureSamples],
     embedded = torch.cat([model.segment_embeddings(f, ss).flatten(0, 1)
                           for f, ss in zip(features, starts, strict=True) if ss]).double()
     net.source_mean.copy_(embedded.mean(0).float())
-    net.source_cov.copy_(torch.cov(embedded.T).float())
+    net.source_cov.copy_(torch.atleast_2d(torch.cov(embedded.T)).float())
 
 
 def fit_model(samples: list[ProcedureSamples], config: CoverageConfig, log,

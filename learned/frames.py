@@ -113,7 +113,10 @@ class FrameSequence:
         h_in, w_in = full_region.shape
         self.crop = Crop(int(xs.min()), int(ys.min()), int(xs.max() - xs.min() + 1),
                          int(ys.max() - ys.min() + 1), w_in, h_in)
-        self.region = self._fit(full_region.astype(np.uint8), cv2.INTER_NEAREST).astype(bool)
+        # nearest by pixel centres (plain INTER_NEAREST samples the top-left of each cell,
+        # which moves the region by up to a pixel against the INTER_AREA frames)
+        self.region = self._fit(full_region.astype(np.uint8),
+                                cv2.INTER_NEAREST_EXACT).astype(bool)
 
     def _fit(self, image: np.ndarray, interpolation: int) -> np.ndarray:
         c = self.crop
@@ -133,7 +136,9 @@ class FrameSequence:
 
     def depth(self, index: int) -> np.ndarray | None:
         """Ground-truth z-depth at network size (simulated inputs only)."""
-        return None if self._depth is None else self._fit(self._depth(index), cv2.INTER_NEAREST)
+        if self._depth is None:
+            return None
+        return self._fit(self._depth(index), cv2.INTER_NEAREST_EXACT)
 
 
 def check_fps(fps: float | None) -> None:

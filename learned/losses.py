@@ -39,6 +39,20 @@ def _blur_reach(config: DepthConfig) -> int:
     return math.ceil(3 * config.photo_blur)
 
 
+def _reach(config: DepthConfig) -> int:
+    """Pixels on each side that a compared pixel's error reads: the SSIM window's half and
+    the photo_blur kernel's reach."""
+    return config.ssim_window // 2 + _blur_reach(config)
+
+
+def within_region(region: torch.Tensor, config: DepthConfig) -> torch.Tensor:
+    """(B, 1, H, W) pixels of the image region whose error reads no pixel outside it (beyond
+    the image's own edge counts as inside: a frame without a border loses nothing)."""
+    grow = _reach(config)
+    outside = F.max_pool2d((~region.bool()).float(), 2 * grow + 1, 1, grow) > 0
+    return region.bool() & ~outside
+
+
 def denoised(image: torch.Tensor, config: DepthConfig) -> torch.Tensor:
     """The image as the photometric error sees it: blurred by config.photo_blur (or as is)."""
     sigma = config.photo_blur
@@ -111,9 +125,9 @@ def specular(image: torch.Tensor, grow: int = 1) -> torch.Tensor:
 
 
 def highlights(image: torch.Tensor, config: DepthConfig) -> torch.Tensor:
-    """Highlights of a sharp image, grown by the reach of the photo_blur kernel as well, so
-    that no compared pixel holds their blurred light."""
-    return specular(image, 1 + _blur_reach(config))
+    """Highlights of a sharp image, grown by the reach of a compared pixel's error (the SSIM
+    window and the photo_blur kernel), so that no compared pixel reads their light."""
+    return specular(image, max(1, _reach(config)))
 
 
 def flow_error(where: torch.Tensor, flow: torch.Tensor, trusted: torch.Tensor,
@@ -179,7 +193,7 @@ def view_synthesis_loss(
     """
     if config.w_flow > 0 and flows is None:
         raise ValueError("w_flow > 0 needs the optical flows of the target to each source")
-    usable = region.bool()
+    usable = within_region(region, config)
     if config.specular_mask:
         usable = usable & ~highlights(target, config)
     seen_target = denoised(target, config)
@@ -190,12 +204,14 @@ def view_synthesis_loss(
         T_ts = transform_from(r_ts, t_ts)
         T_st = transform_from(r_st, t_st)
         seen_source = denoised(source, config)
-        # one warp for the sharp source (its highlights) and the blurred one (compared)
-        both = source if seen_source is source else torch.cat([source, seen_source], 1)
-        w = warp(both, target_depth, T_ts, K, source_depth)
-        sharp, seen = w.image[:, :3], w.image[:, -3:]
+        # one warp for the sharp source (its highlights), the blurred one (compared) and the
+        # region (the sequence's, the same in every frame): a pixel that lands in the source's
+        # border is not compared
+        both = [source] if seen_source is source else [source, seen_source]
+        w = warp(torch.cat([*both, region.float()], 1), target_depth, T_ts, K, source_depth)
+        sharp, seen = w.image[:, :3], w.image[:, -4:-1]
         compared = usable & ~highlights(sharp, config) if config.specular_mask else usable
-        mask = compared & w.valid
+        mask = compared & w.valid & within_region(w.image[:, -1:] > 0.999, config)
         if config.mask_out_of_view:
             compared = mask
         image = _relit(seen, w.ray_ratio, config)

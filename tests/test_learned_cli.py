@@ -24,7 +24,7 @@ from hybrid.types import Camera, InputError
 from learned.checkpoint import read_checkpoint, save_checkpoint
 from learned.config import DEPTH_PRESETS
 from learned.evaluate import evaluate_sequence
-from learned.frames import detect_region, open_sequence
+from learned.frames import FrameSequence, detect_region, open_sequence
 from learned.infer import DepthFiles, infer_sequence
 from learned.metrics import trajectory_errors
 from learned.model import DepthModel, load_depth_model
@@ -108,6 +108,19 @@ def test_detect_region_is_the_disc_minus_a_thin_rim():
 def test_detect_region_of_black_frames_is_an_input_error():
     with pytest.raises(InputError, match="black"):
         detect_region([np.full((20, 30, 3), 10, np.uint8)] * 2)
+
+
+def test_the_region_is_resized_by_pixel_centres_like_the_frames():
+    """A disc centred in its 4.5 times larger bounding box keeps its mirror symmetry at the
+    network's size (sampling each cell's top-left pixel, it moved by about 0.4 px right and
+    down against the frames)."""
+    y, x = np.mgrid[:576, :720]
+    region = ((x - 359.5) / 360) ** 2 + ((y - 287.5) / 288) ** 2 <= 1
+    frames = [np.repeat(np.where(region[..., None], 150, 0).astype(np.uint8), 3, axis=2)] * 2
+    small = FrameSequence("disc", 30.0, (128, 160), frames.__getitem__, 2, region=region).region
+    assert small.any() and not small.all()
+    np.testing.assert_array_equal(small, small[:, ::-1])
+    np.testing.assert_array_equal(small, small[::-1])
 
 
 def test_crop_maps_network_intrinsics_back_to_the_input(tmp_path):

@@ -458,17 +458,20 @@ def test_adapt_makes_target_features_look_like_the_source():
     assert (torch.cov(moved.T) - net.source_cov.double()).abs().max() < 1e-3 * scale
 
 
-def test_adapt_needs_a_video_of_one_segment_and_more_samples_than_dimensions():
+def test_adapt_needs_a_video_of_one_segment_and_more_segments_than_dimensions():
+    """Overlapping windows and mirror views are not independent samples: CORAL asks for more
+    segments' worth of target video (20 frames each here) than the 4 dimensions it aligns."""
     model = CoverageModel(SMALL)
     with pytest.raises(InputError, match="at least 20 frames"):
         adapt(model, [np.zeros((19, 4, SMALL.feature_size), np.float32)], stride=5)
     dims = SMALL.segment_channels[-1]  # the pooled layer CORAL aligns
-    enough = dims // len(MIRRORS) + 1
     rng = np.random.default_rng(0)
-    video = rng.normal(size=(20 + 5 * (enough - 1), 4, SMALL.feature_size)).astype(np.float32)
-    assert adapt(model, [video], stride=5) == enough
-    with pytest.raises(InputError, match=f"at least {enough} target windows .* got {enough - 1}"):
-        adapt(model, [video[:-5]], stride=5)
+    video = rng.normal(size=(20 * (dims + 1), 4, SMALL.feature_size)).astype(np.float32)
+    assert adapt(model, [video], stride=5) == (len(video) - 20) // 5 + 1
+    assert adapt(model, [video[:60], video[60:]], stride=5) == 9 + 5  # 3 and 2 segments
+    with pytest.raises(InputError, match=f"more target video than {dims} segments of 20 frames"
+                                         f".* got {dims}"):
+        adapt(model, [video[:-1]], stride=5)
 
 
 # --- bad input ----------------------------------------------------------------------------
@@ -507,6 +510,16 @@ def test_a_run_refuses_networks_that_read_the_true_field_of_view(tmp_path):
     path = tmp_path / "true-view.safetensors"
     CoverageModel(replace(SMALL, field_of_view="true")).save(path)
     with pytest.raises(InputError, match="always read the simulator's true field of view"):
+        Models.load(RunConfig(coverage_checkpoint=str(path)))
+
+
+def test_a_run_refuses_networks_that_read_the_simulators_depth(tmp_path):
+    """Trained on the true depth (in cm, with median_normalise off), such networks would be
+    fed the depth network's output in its own units."""
+    path = tmp_path / "true-depth.safetensors"
+    CoverageModel(replace(SMALL, input_depth="true", median_normalise=False)).save(path)
+    with pytest.raises(InputError, match=f"^{path}: these coverage networks read the "
+                                         f"simulator's depth"):
         Models.load(RunConfig(coverage_checkpoint=str(path)))
 
 
@@ -574,7 +587,8 @@ def test_train_eval_and_adapt_commands(tmp_path, two_procedures):
     run = tmp_path / "run"
     sets = ["segment_frames=20", "segment_stride=5", "frame_epochs=1", "segment_epochs=2",
             "frame_batch=16", "travel_hops=2",  # 40-frame procedures: 2 hops of 8 frames
-            "calibrate=true"]
+            "segment_channels=8,8,8,8,8,2",  # CORAL below: 4 segments of video > 2 dimensions
+            "calibrate=true"]  # last: dropped below
     args = ["train-coverage", "--data", str(two_procedures), "--out", str(run), "--folds", "2",
             "--depth-checkpoint", str(depth)] + [x for s in sets for x in ("--set", s)]
     result = runner.invoke(app, args)
@@ -665,12 +679,14 @@ def test_train_eval_and_adapt_commands(tmp_path, two_procedures):
     assert metrics["segment_mae_interval"] == pytest.approx(sorted(per_procedure))
 
     adapted = tmp_path / "adapted.safetensors"
-    result = runner.invoke(app, ["adapt", "--target", str(two_procedures), "--out", str(adapted),
-                                 "--model", str(run / "model.safetensors"),
+    # The target: one of the two training procedures, whose windows' statistics are not
+    # those of both, in segments of 10 frames (4 of them), each resampled to the network's 20.
+    result = runner.invoke(app, ["adapt", "--target", str(two_procedures / "proc_0001"),
+                                 "--out", str(adapted), "--model", str(run / "model.safetensors"),
                                  "--depth-checkpoint", str(depth),
-                                 "--segment-seconds", str(20 / 30)])  # 20 frames at 30 fps
+                                 "--segment-seconds", str(10 / 30)])
     assert result.exit_code == 0, result.output
-    assert "CORAL fitted on 10 target windows" in result.output  # 2 x (40 - 20) / 5 + 2
+    assert "CORAL fitted on 13 target windows" in result.output  # (80 - 20) / 5 + 1
     assert load_coverage_model(adapted).depth_tag == file_tag(depth)  # kept for its users
     net = load_coverage_model(adapted).segment
     assert not torch.allclose(net.coral_matrix, torch.eye(len(net.coral_matrix)))
@@ -681,18 +697,30 @@ def test_train_eval_and_adapt_commands(tmp_path, two_procedures):
     assert load_coverage_model(run / "model.safetensors").segment.calibrates()
     assert not net.calibrates()
 
-    result = runner.invoke(app, ["adapt", "--target", str(two_procedures), "--out", str(adapted),
+    result = runner.invoke(app, ["adapt", "--target", str(two_procedures / "proc_0001"),
+                                 "--out", str(adapted),
                                  "--source", str(two_procedures / "proc_0000"),
                                  "--model", str(run / "model.safetensors"),
                                  "--depth-checkpoint", str(depth),
-                                 "--segment-seconds", str(20 / 30)])
+                                 "--segment-seconds", str(10 / 30)])
     assert result.exit_code == 0, result.output
-    assert "source statistics from 5 held-out windows" in result.output  # (40 - 20) / 5 + 1
+    assert "source statistics from 13 held-out windows" in result.output  # (80 - 20) / 5 + 1
     assert not torch.allclose(load_coverage_model(adapted).segment.source_mean, trained_source)
     # Mapped onto held-out statistics, the calibration fitted on held-out windows applies, and
     # still applies when that model is adapted again without --source.
     assert "calibration is not applied" not in result.output
     assert load_coverage_model(adapted).segment.calibrates()
+    # Adapted for insertion videos, whose travel cues read the other way: another transform.
+    inserted = tmp_path / "inserted.safetensors"
+    result = runner.invoke(app, ["adapt", "--target", str(two_procedures / "proc_0001"),
+                                 "--out", str(inserted), "--insertion",
+                                 "--source", str(two_procedures / "proc_0000"),
+                                 "--model", str(run / "model.safetensors"),
+                                 "--depth-checkpoint", str(depth),
+                                 "--segment-seconds", str(10 / 30)])
+    assert result.exit_code == 0, result.output
+    assert not torch.allclose(load_coverage_model(inserted).segment.coral_offset,
+                              load_coverage_model(adapted).segment.coral_offset)
     again = tmp_path / "again.safetensors"
     result = runner.invoke(app, ["adapt", "--target", str(two_procedures), "--out", str(again),
                                  "--model", str(adapted), "--depth-checkpoint", str(depth),

@@ -267,9 +267,11 @@ def test_coarse_levels_keep_the_full_error_where_a_block_is_not_wholly_usable(sc
 
 
 def photometric_loss(target: torch.Tensor, source: torch.Tensor, target_depth: torch.Tensor,
-                     t: np.ndarray, config: DepthConfig) -> float:
+                     t: np.ndarray, config: DepthConfig,
+                     region: torch.Tensor | None = None) -> float:
     """The photometric term of the whole loss, one source seen with the true rotation and
-    translation t (both orders), the true K and the source's true depth."""
+    translation t (both orders), the true K and the source's true depth; region: the image
+    region (None: the whole image)."""
     from kornia.geometry.conversions import rotation_matrix_to_axis_angle
 
     from learned.losses import view_synthesis_loss
@@ -282,7 +284,7 @@ def photometric_loss(target: torch.Tensor, source: torch.Tensor, target_depth: t
     torch.manual_seed(0)  # the auto-mask's tie-breaking noise
     return float(view_synthesis_loss(
         target, [source], target_depth, [as_t(source_depth)[None, None]], [motion],
-        intrinsics(), torch.ones(1, 1, H, W), config).photometric)
+        intrinsics(), torch.ones(1, 1, H, W) if region is None else region, config).photometric)
 
 
 def test_view_synthesis_loss_with_coarse_levels_prefers_the_true_motion(scene):
@@ -297,6 +299,20 @@ def test_view_synthesis_loss_with_coarse_levels_prefers_the_true_motion(scene):
     # ... and the coarse levels are in it: the same loss at full resolution only differs.
     assert loss(T_TRUE) != pytest.approx(loss(T_TRUE, replace(config, coarse_levels=0)),
                                          rel=0.05)
+
+
+def test_the_black_border_outside_the_image_region_is_not_compared(scene):
+    """An endoscope's round image region, the frames black outside it: with the true depth,
+    pose and K the photometric term is what it is when the border holds the scene: no pixel
+    whose SSIM window reads the target's border or the source's is compared (both were:
+    0.0208 against 0.0004)."""
+    rows, columns = torch.meshgrid(torch.arange(H), torch.arange(W), indexing="ij")
+    region = (((columns - CX) / (W / 2)) ** 2 + ((rows - CY) / (H / 2)) ** 2 <= 1)[None, None]
+    config = replace(DepthConfig(), height=H, width=W)
+    black, filled = (photometric_loss(target, source, scene["depth"], T_TRUE, config, region)
+                     for target, source in ((scene["target"] * region, scene["source"] * region),
+                                            (scene["target"], scene["source"])))
+    assert black == pytest.approx(filled, rel=1e-6)
 
 
 def test_photo_blur_lifts_the_truth_out_of_sensor_noise(scene):
