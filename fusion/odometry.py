@@ -85,9 +85,9 @@ def refine_relative_poses(relative: dict[int, np.ndarray], depth: Sequence[np.nd
 
     depth: (H, W) maps, 0 where unknown; rgb: (H, W, 3) uint8 frames of the same size; K at
     that size. Frames are read in order, a block at a time (before that, every 10th or at most
-    SAMPLED_FRAMES of them for the median depth, unless `median` is given); the pairs of a
-    block are aligned in `threads` threads (None: one per core) while the next block is
-    read. The result does not depend on the threads. Diagnostics of benchmarks/geometric_eval.py and
+    SAMPLED_FRAMES of them for the median depth); the pairs of a block are aligned in
+    `threads` threads (None: one per core) while the next block is read. The result does not
+    depend on the threads. Diagnostics of benchmarks/geometric_eval.py and
     benchmarks/odometry_rotation.py, left at their defaults by `c2d2 run` (docs/geometric.md,
     "Where the poses' cost lies"):
     - depth_max, in median depths: both frames' deeper pixels are left out;

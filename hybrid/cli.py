@@ -59,15 +59,13 @@ app = typer.Typer(help="C2D2: detect deficient coverage in colonoscopy video.",
 
 
 def _direction(config: RunConfig, insertion: bool) -> RunConfig:
-    """The run's configuration for an insertion video (the lumen's ℓ and the travel cues
-    read the other way), or as it is for a withdrawal."""
+    """The configuration for an insertion video (the lumen's ℓ and the travel cues read the
+    other way) or for a withdrawal."""
     from dataclasses import replace
 
-    if not insertion:
-        return config
     rec = config.reconstruction
-    return replace(config, reconstruction=replace(rec, lumen=replace(rec.lumen,
-                                                                     withdrawal=False)))
+    return replace(config, reconstruction=replace(rec, lumen=replace(
+        rec.lumen, withdrawal=not insertion)))
 
 
 def _reports_input_errors(command):
@@ -713,7 +711,7 @@ def adapt(
     models = Models.load(config, pick_device(device))
     T, stride = models.coverage.config.segment_frames, models.coverage.config.segment_stride
 
-    def features(paths: list[Path], work: Path) -> list:
+    def features(paths: list[Path], work: Path, config: RunConfig) -> list:
         resampled = []
         for k, path in enumerate(expand_inputs(paths)):
             per_frame, frames = video_features(path, work / str(k), config, models)
@@ -721,11 +719,11 @@ def adapt(
         return resampled
 
     with tempfile.TemporaryDirectory() as work:
-        if source:
-            windows = set_source(models.coverage, features(source, Path(work) / "source"),
-                                 stride)
+        if source:  # simulated withdrawals, whatever the target videos are
+            windows = set_source(models.coverage, features(
+                source, Path(work) / "source", _direction(config, False)), stride)
             typer.echo(f"CORAL source statistics from {windows} held-out windows")
-        windows = fit(models.coverage, features(target, Path(work) / "target"), stride)
+        windows = fit(models.coverage, features(target, Path(work) / "target", config), stride)
     if models.coverage.segment.holds_table() and not models.coverage.segment.calibrates():
         typer.echo("the segment calibration is not applied (CORAL maps the target onto the "
                    "training windows' statistics; give --source to apply it)")

@@ -104,9 +104,9 @@ class GeometricCoverage:
     """(L, K) bool: the cell lies in the default-pair V of some segment."""
     support: list[float | None]
     """Per segment, the share of its default-pair V (by area) where the lumen was fitted to
-    the reconstructed surface (`FittedLumen.fitted`: between its first and last fitted
-    cross-sections) rather than continued straight beyond it; None where V is empty or the
-    default pair was not asked for. How much of the coverage rests on wall the video
+    the reconstructed surface (`FittedLumen.fitted`) rather than continued straight beyond
+    it or interpolated across a stretch without usable cross-sections; None where V is empty
+    or the default pair was not asked for. How much of the coverage rests on wall the video
     reconstructed."""
 
     def labels(self, pair: tuple[float, float] = DEFAULT_PAIR_CM) -> np.ndarray:
@@ -119,10 +119,13 @@ def geometric_coverage(lumen: FittedLumen, poses: np.ndarray, depth: Sequence[np
                        K: np.ndarray, region: np.ndarray | None = None,
                        config: GeometricConfig = GeometricConfig(),
                        delta_pairs: tuple[tuple[float, float], ...] = DELTA_PAIRS_CM,
-                       progress: bool = False, name: str = "video") -> GeometricCoverage:
+                       progress: bool = False, name: str = "video",
+                       first_frame: int = 0) -> GeometricCoverage:
     """Coverage of each full segment of consecutive frames (see the module docstring).
 
-    depth: per-frame (H, W) z-depth (0 = invalid), indexable; region: (H, W) bool image region.
+    depth: per-frame (H, W) z-depth (0 = invalid), indexable; region: (H, W) bool image region;
+    first_frame: the first frame's number in the video (for a window of it), which messages
+    give.
     """
     poses = check_poses(poses, name=f"{name} poses")
     n = len(poses)
@@ -132,7 +135,7 @@ def geometric_coverage(lumen: FittedLumen, poses: np.ndarray, depth: Sequence[np
     if n < T:
         raise InputError(f"{name}: {n} frames is shorter than one segment ({T} frames); "
                          f"geometric coverage needs at least one full segment")
-    first = check_depth(depth[0], None, f"{name} frame 0")
+    first = check_depth(depth[0], None, f"{name} frame {first_frame}")
     region = np.ones(first.shape, dtype=bool) if region is None else np.asarray(region)
     if region.dtype != bool or region.shape != first.shape:
         raise InputError(f"{name}: the image region must be a bool mask of the depth's size "
@@ -159,7 +162,7 @@ def geometric_coverage(lumen: FittedLumen, poses: np.ndarray, depth: Sequence[np
         points = cells.points[a:b].reshape(-1, 3)
         tolerance = np.repeat(config.occlusion_tolerance * row_radius[a:b], len(cells.theta))
         for f in range(start, start + T):
-            d = check_depth(depth[f], first.shape, f"{name} frame {f}")
+            d = check_depth(depth[f], first.shape, f"{name} frame {first_frame + f}")
             R, p = poses[f, :3, :3], poses[f, :3, 3]
             xc = (points - p) @ R
             z = xc[:, 2]

@@ -25,8 +25,8 @@ back-projected depth) in one unit, and returns a `FittedLumen` parametrised by a
    by least squares on the points' distances to the circle, outliers beyond 3 MADs trimmed);
    a section whose inliers occupy fewer than 5 of the twelve 30° sectors around its centre
    (an arc under 90-120°), or whose circle does not enclose the station (inside the lumen),
-   is skipped and filled in from its neighbours; only a gap of one station counts as
-   fitted.
+   is skipped and filled in from its neighbours (only a gap of one station counts as
+   fitted).
 4. The centres and radii go through a running median along the stations (one bad section,
    often at the ragged end of the surface, is outvoted), then are smoothed; the path is
    replaced by the fitted centreline and steps 3-4 run again.
@@ -79,8 +79,8 @@ class LumenFitConfig:
     """Fewest surface points for a cross-section fit."""
     min_arc_bins: int = 5
     """Fewest 30° sectors (of 12) around the fitted centre that its inliers must occupy for
-    a cross-section fit: 5, an arc of at least 90-120°, on which the distance fit's radius is
-    within 6% at 2 mm of noise (docs/geometric.md, "Unbiased cross-sections")."""
+    a cross-section fit: 5, an arc of at least 90-120°, on which one cross-section's radius
+    is within 6% at 2 mm of noise (docs/geometric.md, "Unbiased cross-sections")."""
     iterations: int = 2
     """Fit passes; each pass after the first uses the previous centreline as the path."""
     withdrawal: bool = True
@@ -123,12 +123,15 @@ class FittedLumen:
     def __post_init__(self) -> None:
         self.points = np.asarray(self.points, dtype=np.float64)
         self.radius = np.asarray(self.radius, dtype=np.float64)
+        if self.fitted is not None:
+            self.fitted = np.asarray(self.fitted, dtype=bool)
         m = len(self.points)
+        flags = None if self.fitted is None else self.fitted.shape
         if self.points.ndim != 2 or self.points.shape[1:] != (3,) or m == 0 \
-                or self.radius.shape != (m,) \
-                or (self.fitted is not None and np.shape(self.fitted) != (m,)):
+                or self.radius.shape != (m,) or flags not in (None, (m,)):
             raise InputError(f"a lumen needs (M, 3) centreline points with M radii (and M "
-                             f"fitted flags), got {self.points.shape}, {self.radius.shape}")
+                             f"fitted flags), got {self.points.shape}, {self.radius.shape}"
+                             f"{'' if flags is None else f', {flags}'}")
         if not (np.isfinite(self.points).all() and np.isfinite(self.radius).all()
                 and (self.radius > 0).all()):
             raise InputError("a lumen's centreline points must be finite and its radii finite "
@@ -165,8 +168,9 @@ def fit_lumen(poses: np.ndarray, surface: np.ndarray, fps: float = 30.0,
     on a lumen fitted to the whole video), which orients the fit; None: the cameras' order in
     time, read backwards on a withdrawal (config.withdrawal).
     ahead_at_least: the least length, in the surface's unit, of the straight continuation
-    beyond the deep end (config.extend × r0 where that is longer); with a metric surface, the
-    look-ahead band's reach, so that the tube covers every camera's band."""
+    beyond the deep end (config.extend × r0 where that is longer), of the first pass's path
+    as of the fitted centreline; with a metric surface, the look-ahead band's reach, so that
+    the tube covers every camera's band."""
     poses = check_poses(poses, name=f"{name} poses")
     if along is None:
         along = np.arange(len(poses), dtype=np.float64) * (-1.0 if config.withdrawal else 1.0)
@@ -364,8 +368,8 @@ def _cross_sections(path: np.ndarray, surface: np.ndarray, tree: cKDTree, spacin
                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Circle centre and radius at the stations from the first to the last fitted one, gaps
     between them filled by interpolation, then a running median along the stations; and
-    whether each station was fitted to the surface, or lies next to one that was (a gap of
-    one station is bridged; a longer one is not wall the fit saw)."""
+    whether each station was fitted to the surface (a gap of one station between two that
+    were counts too; a longer one is not wall the fit saw)."""
     tangents = _tangents(path)
     centre = np.full_like(path, np.nan)
     radius = np.full(len(path), np.nan)
@@ -395,10 +399,10 @@ def _cross_sections(path: np.ndarray, surface: np.ndarray, tree: cKDTree, spacin
                          f"points around the camera path, or only short arcs of the wall); "
                          f"check depth and poses")
     index = np.arange(good[0], good[-1] + 1)  # from the first to the last fitted station
-    near = np.isfinite(radius)
-    near[1:] |= near[:-1].copy()
-    near[:-1] |= np.isfinite(radius)[1:]
-    on_wall = near[index]
+    ok = np.isfinite(radius)
+    bridged = ok.copy()
+    bridged[1:-1] |= ok[:-2] & ok[2:]
+    on_wall = bridged[index]
     centre = np.stack([np.interp(index, good, centre[good, k]) for k in range(3)], axis=1)
     radius = np.interp(index, good, radius[good])
     if len(index) < config.median_stations:  # too short to outvote anything
@@ -411,10 +415,11 @@ def _cross_sections(path: np.ndarray, surface: np.ndarray, tree: cKDTree, spacin
 
 
 def _circle(xy: np.ndarray, rounds: int = 3) -> tuple[np.ndarray, float, np.ndarray] | None:
-    """Circle fit with outliers beyond 3 MADs trimmed: centre, radius and the inliers (a
-    mask). Each round starts from the algebraic (Kåsa) fit, which on a noisy partial arc
-    draws the circle too small, and refines it by least squares on the points' distances to
-    the circle (scipy's least_squares)."""
+    """Circle fit with outliers beyond 3 MADs trimmed: centre, radius and its inliers (a
+    mask: the points within 3 MADs of the circle returned). Each round starts from the
+    algebraic (Kåsa) fit, which on a noisy partial arc draws the circle too small, and
+    refines it by least squares on the points' distances to the circle (scipy's
+    least_squares)."""
     keep = np.ones(len(xy), dtype=bool)
     result = None
     for _ in range(rounds):
@@ -432,8 +437,8 @@ def _circle(xy: np.ndarray, rounds: int = 3) -> tuple[np.ndarray, float, np.ndar
         centre, radius = fit.x[:2], float(abs(fit.x[2]))
         residual = np.abs(np.linalg.norm(xy - centre, axis=1) - radius)
         mad = np.median(residual[keep]) + 1e-12
-        result = (centre, radius, keep)
         keep = residual <= 3 * 1.4826 * mad
+        result = (centre, radius, keep)
     return result
 
 

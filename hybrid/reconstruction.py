@@ -24,8 +24,9 @@ from hybrid.lumen_fit import FittedLumen, LumenFitConfig, fit_lumen, metric_scal
 from hybrid.types import InputError, check_poses, sampling_stride
 
 LOOK_AHEAD_CM = max(d1 for _, d1 in DELTA_PAIRS_CM)
-"""The farthest reach of a look-ahead band: the metric lumen goes on at least this far
-beyond its deep end, so that no camera's band is cut short by the end of the tube."""
+"""The farthest reach of a look-ahead band of the Δ pairs `c2d2 run` measures: the metric
+lumen goes on at least this far beyond its deep end, so that no camera's band is cut short
+by the end of the tube (geometric_coverage with pairs reaching further would need more)."""
 
 
 @dataclass(frozen=True)

@@ -97,7 +97,7 @@ def local_segment_coverage(depth: Sequence[np.ndarray], K: np.ndarray, poses: np
             result = geometric_coverage(
                 rec.lumen, rec.poses[start - first:stop - first],
                 ScaledDepth(_Window(seen, start, stop), rec.scale, region), K, region, config,
-                name=label)
+                name=label, first_frame=start)
             return LocalSegment(replace(result.segments[0], index=index, start=start, stop=stop),
                                 result)
         except Exception as err:  # one window's failure must not cost the other segments

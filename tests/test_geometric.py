@@ -123,8 +123,9 @@ def noisy_arc_tube(degrees: float, noise: float = 0.2, seed: int = 1) -> np.ndar
 
 @pytest.mark.parametrize("degrees", [130, 180, 360])
 def test_the_radius_of_a_noisy_partial_arc_is_not_drawn_too_small(degrees):
-    """A wall seen on a 130° arc, 2 mm of noise: the circle is fitted by its points'
-    distances, so its radius stays within 3% of 2 cm (the algebraic fit alone gave 1.7)."""
+    """A wall seen on a 130° or 180° arc (and all round), 2 mm of noise: the circles are
+    fitted by their points' distances, so the radius stays within 3% of 2 cm (the algebraic
+    fit alone gave 1.63 on the 130° arc)."""
     lumen = fit_lumen(cameras_at(np.linspace(18, 2, 300), 0.0), noisy_arc_tube(degrees))
     assert np.median(lumen.radius[lumen.fitted]) == pytest.approx(RADIUS, rel=0.03)
 
@@ -136,7 +137,7 @@ def test_the_lumen_is_fitted_only_where_there_is_wall():
     tube = tube[(tube[:, 2] > -2) & (tube[:, 2] < 18) & ((tube[:, 2] < 5) | (tube[:, 2] > 12))]
     lumen = fit_lumen(cameras_at(np.linspace(14, 0, 160), 0.2), tube)
     z = lumen.points[:, 2]
-    assert not lumen.fitted[(z > 6) & (z < 11)].any()
+    assert not lumen.fitted[(z > 5.5) & (z < 12)].any()  # the slab at 5.1 reaches the wall
     assert lumen.fitted[(z > 1) & (z < 4)].all() and lumen.fitted[(z > 13) & (z < 14)].all()
 
 
@@ -493,6 +494,17 @@ def test_geometric_coverage_bad_input():
                                config=config)
 
 
+def test_a_lumens_fitted_flags_are_a_mask():
+    """Flags given as 0/1 select stations as a mask (by index they would pick the wrong radii),
+    and their number must match the stations'."""
+    points = np.array([[0.0, 0, 0], [0, 0, 1], [0, 0, 2]])
+    lumen = FittedLumen(points, np.array([1.0, 2.0, 3.0]), np.array([0, 1, 1]))
+    assert lumen.fitted.dtype == bool
+    assert metric_scale(lumen, 5.0) == pytest.approx(2.0)  # the median of 2 and 3 is 2.5
+    with pytest.raises(InputError, match=r"got \(3, 3\), \(3,\), \(2,\)"):
+        FittedLumen(points, np.ones(3), np.ones(2, bool))
+
+
 @pytest.mark.parametrize("points, radius", [
     (np.array([[0.0, 0, 0], [0, 0, np.nan]]), np.array([2.0, 2.0])),
     (np.array([[0.0, 0, 0], [0, 0, 10]]), np.array([2.0, 0.0])),
@@ -631,6 +643,14 @@ def test_a_bad_depth_frame_is_named_by_its_number_in_the_video():
     assert [s.error.split(":")[0] for s in local] == ["clip segment 0 frame 62",
                                                       "clip segment 1 frame 61"]
     assert all("depth has NaN" in s.error for s in local)
+    # Frame 50: fused by the first window only; the second segment's coverage (frames 45-89)
+    # reads it as its 6th frame.
+    depth = [cylinder_depth(camera, p) for p in poses]
+    depth[50] = np.full_like(depth[50], np.nan)
+    local = local_segment_coverage(depth, camera.K, poses, 45, 20, None, config,
+                                   GeometricConfig(), name="clip")
+    assert [s.error.split(":")[0] for s in local] == ["clip segment 0 frame 50",
+                                                      "clip segment 1 frame 50"]
 
 
 def test_maps_of_a_segment_with_an_empty_v(tmp_path, monkeypatch):

@@ -721,6 +721,10 @@ def test_train_eval_and_adapt_commands(tmp_path, two_procedures):
     assert result.exit_code == 0, result.output
     assert not torch.allclose(load_coverage_model(inserted).segment.coral_offset,
                               load_coverage_model(adapted).segment.coral_offset)
+    # ... while the simulated source videos are withdrawals still: the same statistics.
+    for key in ("source_mean", "source_cov"):
+        assert torch.equal(getattr(load_coverage_model(inserted).segment, key),
+                           getattr(load_coverage_model(adapted).segment, key))
     again = tmp_path / "again.safetensors"
     result = runner.invoke(app, ["adapt", "--target", str(two_procedures), "--out", str(again),
                                  "--model", str(adapted), "--depth-checkpoint", str(depth),
