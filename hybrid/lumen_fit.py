@@ -116,9 +116,9 @@ class FittedLumen:
     points: np.ndarray
     radius: np.ndarray
     fitted: np.ndarray | None = None
-    """(M,) bool: the radius was fitted to the surface there, or at a station next to one that
-    was (False where the centreline is continued straight beyond the surface, or interpolated
-    across a longer stretch without usable cross-sections); None: everywhere."""
+    """(M,) bool: the radius was fitted to the surface there, or on a single station between
+    two where it was (False where the centreline is continued straight beyond the surface, or
+    interpolated across a longer stretch without usable cross-sections); None: everywhere."""
 
     def __post_init__(self) -> None:
         self.points = np.asarray(self.points, dtype=np.float64)
