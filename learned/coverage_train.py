@@ -150,7 +150,11 @@ def train_segment_net(model: CoverageModel, samples: list[ProcedureSamples],
     config, net, device = model.config, model.segment, device_of(model)
     every = np.concatenate(features).reshape(-1, config.feature_size)
     net.feature_mean.copy_(torch.from_numpy(every.mean(0)))
-    net.feature_std.copy_(torch.from_numpy(every.std(0) + 1e-6))
+    # A feature (nearly) constant in training taught the network nothing, and one that varies
+    # in a new video would be multiplied by up to 1e6: an infinite std makes it read 0.
+    std = every.std(0)
+    constant = std <= 1e-3 * np.median(std)
+    net.feature_std.copy_(torch.from_numpy(np.where(constant, np.inf, std + 1e-6)))
     windows = [(k, int(start), float(label)) for k, s in enumerate(samples)
                for start, label in zip(s.window_starts, s.window_labels, strict=True)
                if np.isfinite(label)]

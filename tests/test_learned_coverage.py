@@ -391,6 +391,26 @@ def test_source_statistics_are_those_of_every_training_window_in_every_view():
     assert torch.allclose(model.segment.source_cov.double(), torch.cov(embedded.T), atol=1e-5)
 
 
+def test_a_feature_constant_in_training_is_ignored_in_a_new_video():
+    """A feature that never varied over the training frames (a dead unit) is standardised to
+    0 whatever it reads later, not multiplied by a millionth's inverse."""
+    samples = toy_samples()
+    torch.manual_seed(0)
+    model = CoverageModel(replace(SMALL, segment_epochs=2))
+    features = [model.frame_outputs(s.inputs, s.cues)[1] for s in samples]
+    for f in features:
+        f[..., 3] = 0.5  # as a unit that never fires would be
+    train_segment_net(model, samples, features, lambda entry: None)
+    spread = np.concatenate(features).reshape(-1, SMALL.feature_size).std(0)
+    assert torch.isinf(model.segment.feature_std[3])
+    assert torch.equal(torch.isinf(model.segment.feature_std),
+                       torch.from_numpy(spread <= 1e-3 * np.median(spread)))
+    woken = features[0].copy()
+    woken[..., 3] = 40.0
+    np.testing.assert_array_equal(model.segment_outputs(woken, [0]),
+                                  model.segment_outputs(features[0], [0]))
+
+
 def test_fold_split_never_mixes_procedures():
     folds = fold_split(11, 5, seed=3)
     assert len(folds) == 5
