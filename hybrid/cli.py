@@ -243,6 +243,8 @@ def batch(
     workers: Annotated[int, typer.Option(min=1, help="Videos processed in parallel.")] = 1,
     depth_checkpoint: PipelineDepth = None,
     coverage_checkpoint: PipelineCoverage = None,
+    insertion: Annotated[bool, typer.Option(
+        help="The videos are insertions, not withdrawals (all of them).")] = False,
     self_calibrate: ViewSelfCalibrate = False,
     device: Device = "auto",
 ):
@@ -253,9 +255,9 @@ def batch(
     from hybrid.pipeline import RunConfig
     from learned.device import pick_device
 
-    config = RunConfig(depth_checkpoint=_opt(depth_checkpoint),
-                       coverage_checkpoint=_opt(coverage_checkpoint),
-                       self_calibrate=self_calibrate)
+    config = _direction(RunConfig(depth_checkpoint=_opt(depth_checkpoint),
+                                  coverage_checkpoint=_opt(coverage_checkpoint),
+                                  self_calibrate=self_calibrate), insertion)
     summary = run_batch(folder, out, config, workers=workers, device=pick_device(device))
     rows = list(csv.DictReader(summary.open()))
     failed = [r for r in rows if r["status"] == "failed"]

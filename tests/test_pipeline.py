@@ -895,6 +895,28 @@ def test_batch_with_two_workers_gives_what_one_gives(frames, tmp_path):
         assert two["mean_geometric"] == one["mean_geometric"]
 
 
+def test_batch_reads_every_video_as_an_insertion_when_told(frames, tmp_path, monkeypatch):
+    """`batch --insertion` runs each video as `run --insertion` does (its lumen's ℓ and the
+    travel cues the other way); without it, as a withdrawal."""
+    import hybrid.batch
+
+    videos = tmp_path / "videos"
+    videos.mkdir()
+    write_video(videos / "a.avi", frames[:110], FPS)
+    seen = []
+
+    def recorded(video, work, config, *args, **kwargs):
+        seen.append(config.reconstruction.lumen.withdrawal)
+        raise InputError("stop here")
+
+    monkeypatch.setattr(hybrid.batch, "run_video", recorded)
+    for flag in ([], ["--insertion"]):
+        result = runner.invoke(app, ["batch", str(videos), "--out", str(tmp_path / "out"),
+                                     *flag])
+        assert result.exit_code == 1 and "stop here" in result.stderr
+    assert seen == [True, False]
+
+
 @pytest.mark.parametrize("fault", ["dies", "cannot start"])
 def test_a_worker_that_dies_fails_its_own_video_only(fault, frames, tmp_path, monkeypatch):
     """With two workers each video runs in a process of its own: one whose process dies (here
