@@ -35,13 +35,15 @@ def adaptation_config(config: DepthConfig, checkpoint: Path, steps: int, seq: Fr
                       ) -> DepthConfig:
     """The model's training config, run for `steps` from `checkpoint` at its constant learning
     rate; the chain term's steps capped at the video's pair gap in frames (a low frame rate
-    has fewer frames between a pair)."""
+    has fewer frames between a pair); without the structure-from-motion maps of a model
+    trained with --maps (the video has none), its ordinary batches as they were."""
     gap = max(1, round(seq.fps * config.pair_gap_s))
     if config.w_chain and gap < config.chain_steps:
         log.warning("%s: the chain term takes %d steps instead of %d, the frames between a "
                     "pair at %.3g frames/s", seq.name, gap, config.chain_steps, seq.fps)
-    return replace(config, init=str(checkpoint), steps=steps, lr_drop_step=0, input_fps=0.0,
-                   chain_steps=min(config.chain_steps, gap))
+    return replace(config.ordinary_view(), photo_blur_on="all", maps="", w_map=0.0,
+                   w_map_motion=0.0, map_zoom=False, init=str(checkpoint), steps=steps,
+                   lr_drop_step=0, input_fps=0.0, chain_steps=min(config.chain_steps, gap))
 
 
 def adapt_depth_model(checkpoint: Path, config: DepthConfig, seq: FrameSequence, out: Path,

@@ -82,6 +82,21 @@ def test_a_folder_of_another_adaptation_is_refused(start, clip, tmp_path):
         train_depth([other_input], tmp_path / "wide", replace(TINY, width=128), progress=False)
 
 
+def test_a_model_trained_with_maps_adapts_without_them(start, clip, tmp_path):
+    """The video has no structure-from-motion maps: the adaptation drops the map terms and
+    keeps the ordinary batches as they were (unblurred where the blur was the maps' only),
+    and runs (it asked for the maps and stopped)."""
+    seq = open_sequence(clip, (TINY.height, TINY.width))
+    config = replace(TINY, maps=str(tmp_path / "no-maps"), w_map=1.0, w_map_motion=0.3,
+                     map_zoom=True, photo_blur=1.0, photo_blur_on="maps")
+    adapted = adaptation_config(config, start, 1, seq)
+    assert (adapted.maps, adapted.w_map, adapted.w_map_motion, adapted.map_zoom) == (
+        "", 0.0, 0.0, False)
+    assert (adapted.photo_blur, adapted.photo_blur_on) == (0.0, "all")
+    model = adapt_depth_model(start, config, seq, tmp_path / "adapted", steps=1)
+    assert model.config.maps == ""
+
+
 def test_the_chain_term_is_capped_at_a_low_frame_rate_pair_gap(start):
     config = replace(TINY, w_chain=0.3, chain_steps=9, pair_gap_s=0.3, lr_drop_step=500)
     frames = np.full((6, 64, 96, 3), 128, np.uint8)
