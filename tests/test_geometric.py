@@ -599,6 +599,24 @@ def test_local_segment_coverage_matches_the_exact_lumen(tmp_path):
     assert all(s.segment.coverage[key] is None and "too short" in s.error for s in stuck)
 
 
+def test_the_reconstructed_tube_reaches_the_farthest_look_ahead_band():
+    """A 1-cm colon whose wall ends 0.5 cm past the deepest camera, in cm: the metric lumen
+    goes on at least LOOK_AHEAD_CM (6 cm) beyond that camera (3.5 first radii, 3.6 cm, before
+    reconstruct asked for it)."""
+    from hybrid.reconstruction import LOOK_AHEAD_CM, ReconstructionConfig, reconstruct
+
+    camera = Camera(64, 48, 30.0, 30.0, 31.5, 23.5)
+    poses = np.repeat(np.eye(4)[None], 90, 0)
+    poses[:, 2, 3] = np.linspace(8.0, 2.0, 90)  # looking along +z, so a pixel's z is z + depth
+    depth = [np.where(p[2, 3] + d > 8.5, 0.0, d).astype(np.float32)
+             for p in poses for d in [cylinder_depth(camera, p, radius=1.0)]]
+    rec = reconstruct(depth, camera.K, poses, config=ReconstructionConfig(voxel_cm=0.05),
+                      scale=1.0)
+    ell, _ = Lumen(rec.lumen.points).project(rec.poses[:, :3, 3])
+    assert LOOK_AHEAD_CM == 6.0
+    assert rec.lumen.arclength[-1] >= ell.max() + LOOK_AHEAD_CM
+
+
 def test_one_segment_failing_in_a_library_leaves_the_others_theirs(monkeypatch):
     """A window whose fit raises an error of a library (not an InputError) gets no value and
     that error as its reason; the other segments are computed (the whole branch failed)."""
