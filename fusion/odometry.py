@@ -184,7 +184,7 @@ def refine_relative_poses(relative: dict[int, np.ndarray], depth: Sequence[np.nd
             for t in range(begin, stop):  # read while the threads align the block before
                 d = check_depth(depth[t], size, f"{name} frame {t}")
                 if median is not None:
-                    d *= np.float32(unit)
+                    d = d * np.float32(unit)
                 window[t] = _images(rgb[t], d, region, nearest, f"{name} frame {t}",
                                     (scale, light_power))
             bar.update(stop - begin)

@@ -110,19 +110,8 @@ def ingest(path: Path, size: tuple[int, int], frames_out: Path, region: np.ndarr
                 [np.repeat(brightest[..., None], 3, axis=2)])
         except InputError as err:
             raise InputError(f"{path}: {err}") from err
-    if region.shape != shape[:2] or not region.any():
-        raise InputError(f"{path}: the image region must be a non-empty mask of the frame size "
-                         f"{shape[:2]}, got {region.shape}")
-    ys, xs = np.nonzero(region)
-    crop = Crop(int(xs.min()), int(ys.min()), int(xs.max() - xs.min() + 1),
-                int(ys.max() - ys.min() + 1), shape[1], shape[0])
-    height, width = size
-
-    def fit(image: np.ndarray, interpolation: int) -> np.ndarray:
-        cut = image[crop.y0:crop.y0 + crop.height, crop.x0:crop.x0 + crop.width]
-        return cv2.resize(cut, (width, height), interpolation=interpolation)
-
-    small_region = fit(region.astype(np.uint8), cv2.INTER_NEAREST_EXACT).astype(bool)
+    crop = Crop.of(region, shape, str(path))
+    small_region = crop.fit_region(region, size)
     # The Laplacian at the region's edge reads the step to the black border, also where the
     # region meets the frame's edge: keep it out.
     sharpness_region = cv2.erode(small_region.astype(np.uint8), np.ones((5, 5), np.uint8),
@@ -131,7 +120,7 @@ def ingest(path: Path, size: tuple[int, int], frames_out: Path, region: np.ndarr
         raise InputError(f"{path}: the image region is {int(small_region.sum())} pixels at the "
                          f"networks' size {size}, too thin to judge the frames by; give a mask "
                          f"(--mask) that covers the image, filled")
-    stack = NpyWriter(frames_out, (count, height, width, 3), np.uint8)
+    stack = NpyWriter(frames_out, (count, *size, 3), np.uint8)
     dark, bright, blurred = [], [], []
     try:
         for index, frame in enumerate(tqdm(source.open(), total=count, unit="frame",
@@ -139,7 +128,7 @@ def ingest(path: Path, size: tuple[int, int], frames_out: Path, region: np.ndarr
                                            disable=not progress)):
             if index == count:
                 break
-            small = fit(frame, cv2.INTER_AREA)
+            small = crop.fit(frame, size, cv2.INTER_AREA)
             stack[index:index + 1] = small[None]
             grey = cv2.cvtColor(small, cv2.COLOR_RGB2GRAY)
             inside = grey[small_region]

@@ -79,8 +79,8 @@ class LumenFitConfig:
     """Fewest surface points for a cross-section fit."""
     min_arc_bins: int = 5
     """Fewest 30° sectors (of 12) around the fitted centre that its inliers must occupy for
-    a cross-section fit: 5, an arc of at least 90-120°, on which one cross-section's radius
-    is within 6% at 2 mm of noise (docs/geometric.md, "Unbiased cross-sections")."""
+    a cross-section fit: 5, an arc of at least 90-120°, on which the fitted radius comes out
+    5-10% short at 2 mm of noise (docs/geometric.md, "Unbiased cross-sections")."""
     iterations: int = 2
     """Fit passes; each pass after the first uses the previous centreline as the path."""
     withdrawal: bool = True
@@ -430,9 +430,10 @@ def _circle(xy: np.ndarray, rounds: int = 3) -> tuple[np.ndarray, float, np.ndar
         b = -(pts ** 2).sum(axis=1)
         (d, e, f), *_ = np.linalg.lstsq(A, b, rcond=None)
         start = np.array([-d / 2, -e / 2])
-        if not start @ start - f > 0:
+        r2 = start @ start - f
+        if not r2 > 0:
             return result
-        fit = least_squares(_off_circle, np.append(start, np.sqrt(start @ start - f)),
+        fit = least_squares(_off_circle, np.append(start, np.sqrt(r2)),
                             jac=_off_circle_jacobian, method="lm", args=(pts,))
         centre, radius = fit.x[:2], float(abs(fit.x[2]))
         residual = np.abs(np.linalg.norm(xy - centre, axis=1) - radius)

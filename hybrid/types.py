@@ -107,14 +107,15 @@ def check_poses(poses: np.ndarray, name: str = "poses") -> np.ndarray:
 
 
 def check_depth(depth: np.ndarray, shape: tuple[int, int] | None, what: str) -> np.ndarray:
-    """A non-empty (H, W) depth map (of `shape` if given) as float32, finite and not negative
-    (0 marks an invalid pixel), or an InputError naming `what`."""
+    """A non-empty (H, W) depth map (of `shape` if given) as float32 (the map itself if it is
+    float32 already), finite and not negative (0 marks an invalid pixel), or an InputError
+    naming `what`."""
     depth = np.asarray(depth)
     if depth.ndim != 2 or depth.size == 0 or (shape is not None and depth.shape != shape):
         raise InputError(f"{what}: depth must be a non-empty (H, W) map"
                          f"{'' if shape is None else f' of the first frame size {shape}'}, "
                          f"got shape {depth.shape}")
-    depth = depth.astype(np.float32)
+    depth = depth.astype(np.float32, copy=False)
     if not np.isfinite(depth).all() or (depth < 0).any():
         raise InputError(f"{what}: depth has NaN, infinite or negative values; mark invalid "
                          f"pixels with 0")

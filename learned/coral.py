@@ -7,8 +7,8 @@ covariances get a small ridge (1e-5 of their mean variance). The samples are the
 every segment_stride frames, each in its mirror views, but overlapping windows and the views
 of one window are far from independent: a target of fewer segments' worth of video (T frames
 each) than z has dimensions leaves its covariance near singular, and A would blow up the
-directions it lacks (five windows of one 14-s video stretched one direction 130 times and
-took coverages of 0.8 to 0), so each side needs more segments than dimensions. The source
+directions it lacks (five windows of one 14-s video stretch one direction 130 times:
+benchmarks/coral_small_target.py), so each side needs more segments than dimensions. The source
 statistics can be taken from held-out synthetic videos instead of the training windows
 (`set_source`).
 """

@@ -43,6 +43,28 @@ class Crop:
     input_width: int
     input_height: int
 
+    @classmethod
+    def of(cls, region: np.ndarray, shape: tuple[int, ...], name: str) -> Crop:
+        """The bounding box of an input's image region, a non-empty bool mask of the frame
+        size `shape` (H, W[, 3]), or an InputError naming `name`."""
+        if region.shape != tuple(shape[:2]) or not region.any():
+            raise InputError(f"{name}: the image region must be a non-empty mask of the frame "
+                             f"size {tuple(shape[:2])}, got {region.shape}")
+        ys, xs = np.nonzero(region)
+        return cls(int(xs.min()), int(ys.min()), int(xs.max() - xs.min() + 1),
+                   int(ys.max() - ys.min() + 1), region.shape[1], region.shape[0])
+
+    def fit(self, image: np.ndarray, size: tuple[int, int], interpolation: int) -> np.ndarray:
+        """An input-sized image cut to the box and resized to size (H, W)."""
+        cut = image[self.y0:self.y0 + self.height, self.x0:self.x0 + self.width]
+        return cv2.resize(cut, (size[1], size[0]), interpolation=interpolation)
+
+    def fit_region(self, region: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+        """The image region cut and resized like the frames, nearest by pixel centres (plain
+        INTER_NEAREST samples the top-left of each cell, which moves the region by up to a
+        pixel against the INTER_AREA frames)."""
+        return self.fit(region.astype(np.uint8), size, cv2.INTER_NEAREST_EXACT).astype(bool)
+
     def camera_to_input(self, camera: Camera) -> Camera:
         """Intrinsics of the network-sized crop expressed in the input's pixels."""
         full = camera.resized(self.width, self.height)
@@ -106,22 +128,8 @@ class FrameSequence:
             return
         picks = np.linspace(0, count - 1, min(count, 24)).round().astype(int)
         full_region = region if region is not None else detect_region([loader(i) for i in picks])
-        if full_region.shape != first.shape[:2] or not full_region.any():
-            raise InputError(f"{name}: the image region must be a non-empty mask of the frame "
-                             f"size {first.shape[:2]}, got {full_region.shape}")
-        ys, xs = np.nonzero(full_region)
-        h_in, w_in = full_region.shape
-        self.crop = Crop(int(xs.min()), int(ys.min()), int(xs.max() - xs.min() + 1),
-                         int(ys.max() - ys.min() + 1), w_in, h_in)
-        # nearest by pixel centres (plain INTER_NEAREST samples the top-left of each cell,
-        # which moves the region by up to a pixel against the INTER_AREA frames)
-        self.region = self._fit(full_region.astype(np.uint8),
-                                cv2.INTER_NEAREST_EXACT).astype(bool)
-
-    def _fit(self, image: np.ndarray, interpolation: int) -> np.ndarray:
-        c = self.crop
-        crop = image[c.y0:c.y0 + c.height, c.x0:c.x0 + c.width]
-        return cv2.resize(crop, (self.size[1], self.size[0]), interpolation=interpolation)
+        self.crop = Crop.of(full_region, first.shape, name)
+        self.region = self.crop.fit_region(full_region, size)
 
     @property
     def pixel_aspect(self) -> float:
@@ -132,13 +140,13 @@ class FrameSequence:
     def frame(self, index: int) -> np.ndarray:
         """RGB uint8 (H, W, 3) at network size."""
         image = self._load(index)
-        return image if self._fitted else self._fit(image, cv2.INTER_AREA)
+        return image if self._fitted else self.crop.fit(image, self.size, cv2.INTER_AREA)
 
     def depth(self, index: int) -> np.ndarray | None:
         """Ground-truth z-depth at network size (simulated inputs only)."""
         if self._depth is None:
             return None
-        return self._fit(self._depth(index), cv2.INTER_NEAREST_EXACT)
+        return self.crop.fit(self._depth(index), self.size, cv2.INTER_NEAREST_EXACT)
 
 
 def check_fps(fps: float | None) -> None:

@@ -143,15 +143,19 @@ def test_the_lumen_is_fitted_only_where_there_is_wall():
 
 @pytest.mark.parametrize("radius", [1.0, 1.2, 1.5])
 def test_the_tube_reaches_every_cameras_look_ahead_band(radius):
-    """A narrow tube whose wall ends just past the deepest camera: continued 3.5 radii, it
-    ended 4.9 cm beyond that camera at 1 cm, short of the farthest band (6 cm); with
-    ahead_at_least it reaches it."""
+    """A narrow tube whose wall ends 0.5 cm past the deepest camera: continued 3.5 radii
+    from the cameras' smoothed path, it ended 5.85 cm beyond that camera at 1 cm (at 42b6e32),
+    short of the farthest band (6 cm); with ahead_at_least it reaches that band, or a farther
+    one (9 cm, which 3.5 radii past the raw cameras do not reach either)."""
     tube = straight_tube(radius)
     tube = tube[tube[:, 2] < 8.5]
     poses = cameras_at(np.linspace(8, 2, 120), 0.2)
     lumen = fit_lumen(poses, tube, ahead_at_least=6.0)
     ell, _ = Lumen(lumen.points).project(poses[:, :3, 3])
     assert lumen.arclength[-1] >= ell.max() + 6.0
+    lumen = fit_lumen(poses, tube, ahead_at_least=9.0)
+    ell, _ = Lumen(lumen.points).project(poses[:, :3, 3])
+    assert lumen.arclength[-1] >= ell.max() + 9.0
 
 
 def test_lumen_fit_rejects_circles_that_miss_the_station():
