@@ -87,7 +87,7 @@ def truth_batch(sampler: TripletSampler, size: int, rng: np.random.Generator) ->
     next), their true K (B, 3, 3), motions target -> previous and target -> next as
     view_synthesis_loss takes them, and true depths (B, 3, H, W)."""
     picks = [(sampler.sequences[k], (t - gap, t, t + gap)) for k, t, gap in sampler.draw(size, rng)]
-    return {"frames": to_tensor(np.stack([np.stack([seq.frame(i) for i in ids])
+    return {"frames": to_tensor(np.stack([np.stack([seq.network_frame(i) for i in ids])
                                           for seq, ids in picks])),
             "K": torch.tensor(np.stack([seq.camera.K for seq, _ in picks]), dtype=torch.float32),
             "motions": stack_motions([[relative_motion(seq.poses, ids[1], s)

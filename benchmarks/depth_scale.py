@@ -45,7 +45,7 @@ def log_medians(model: DepthModel, path: Path, every: int) -> np.ndarray:
     ids = list(range(0, seq.num_frames, every))
     with torch.no_grad():
         depth = np.concatenate([model.predict_depth(to_tensor(np.stack(
-            [seq.frame(i) for i in ids[start:start + 32]])))[:, 0].numpy()
+            [seq.network_frame(i) for i in ids[start:start + 32]])))[:, 0].numpy()
             for start in range(0, len(ids), 32)])
     return np.log(region_medians(depth, seq.region, str(path)))
 

@@ -46,10 +46,10 @@ def pairs(sampler: TripletSampler, drawn: list[tuple[int, int, int]]
     targets, sources, motions = [], [], []
     for k, t, gap in drawn:
         seq = sampler.sequences[k]
-        target = seq.frame(t)
+        target = seq.network_frame(t)
         for s in (t - gap, t + gap):
             targets.append(target)
-            sources.append(seq.frame(s))
+            sources.append(seq.network_frame(s))
             rotation, translation = relative_motion(seq.poses, t, s)[:2]
             motions.append(torch.cat([rotation[0], translation[0]]))
     return to_tensor(np.stack(targets)), to_tensor(np.stack(sources)), torch.stack(motions)

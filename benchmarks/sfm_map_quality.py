@@ -79,8 +79,8 @@ def main() -> None:
             mapped = relative_motion(poses, t, t + gap)
             truth = relative_motion(seq.poses, t, t + gap)
             with torch.no_grad():
-                r, tr, *_ = model.pair_motion(to_tensor(seq.frame(t))[None],
-                                              to_tensor(seq.frame(t + gap))[None])
+                r, tr, *_ = model.pair_motion(to_tensor(seq.network_frame(t))[None],
+                                              to_tensor(seq.network_frame(t + gap))[None])
             row["rotation"].append(rotation_error(mapped[0][0], truth[0][0]))
             row["translation"].append(angle(mapped[1][0], truth[1][0]))
             row["net_rotation"].append(rotation_error(r[0], truth[0][0]))

@@ -3,7 +3,7 @@
 For each procedure under --data, on its first --frames frames at the fast preset's 128x160:
 
 - SfM: pycolmap on every --step-th frame (a wider baseline per pair), one shared
-  SIMPLE_PINHOLE camera, no mask (the simulator has no border).
+  SIMPLE_PINHOLE camera, no mask (for procedures simulated without --octagon).
 - Learned: the shipped depth checkpoint on all consecutive frames (as it was trained); its
   chained poses are taken at the same frames as SfM's; K is the median over frame pairs.
 

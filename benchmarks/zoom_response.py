@@ -39,8 +39,8 @@ def main() -> None:
         seq = open_sequence(path, size)
         gap = max(1, round(seq.fps * model.config.pair_gap_s))
         picks = np.linspace(gap, seq.num_frames - 1, args.pairs).round().astype(int)
-        a = to_tensor(np.stack([seq.frame(t - gap) for t in picks]))
-        b = to_tensor(np.stack([seq.frame(t) for t in picks]))
+        a = to_tensor(np.stack([seq.network_frame(t - gap) for t in picks]))
+        b = to_tensor(np.stack([seq.network_frame(t) for t in picks]))
         pairs = torch.stack([a, b], 1)
         for s in args.zooms:
             box = centred_box(size, s)

@@ -114,15 +114,21 @@ def simulate(
                     "in the same pass as the ground truth: train-coverage's training windows, "
                     "which it would otherwise label itself. Default: 30, the coverage "
                     "networks' stride; none with --frame-step. 0: none.")] = None,
+    octagon: Annotated[bool, typer.Option(
+        help="Show the wall through an octagonal image region, as real endoscopes do: each "
+             "frame's corners cut off along 45° lines with legs of 0.15-0.25 of its shorter "
+             "side (drawn per procedure; region.png), black in the frames and unseen for the "
+             "ground truth. Everything else is the procedure without it.")] = False,
 ):
     """Simulate procedures with rendered RGB, depth, poses and exact ground-truth coverage."""
-    from hybrid.sim.simulate import SimConfig, simulate_dataset, with_overrides
+    from hybrid.sim.simulate import OCTAGON_CUT, SimConfig, simulate_dataset, with_overrides
     from learned.config import CoverageConfig
 
     if window_stride is None:
         window_stride = 0 if frame_step and frame_step > 1 else CoverageConfig().segment_stride
     try:
-        config = with_overrides(SimConfig(preset=preset, style=style, camera_seed=camera_seed),
+        config = with_overrides(SimConfig(preset=preset, style=style, camera_seed=camera_seed,
+                                          corner_cut=OCTAGON_CUT if octagon else None),
                                 length_cm, max_frames, frame_step)
     except ValueError as err:
         raise InputError(str(err)) from err
@@ -139,6 +145,9 @@ def coverage(
     poses: Annotated[Path, typer.Option(help="(N, 4, 4) .npy camera-to-world poses, cm.")],
     camera: Annotated[Path, typer.Option(help="camera.json: width, height, fx, fy, cx, cy.")],
     segment_frames: Annotated[int, typer.Option(min=1, help="Frames per segment.")] = 300,
+    region: Annotated[Path | None, typer.Option(
+        help="The camera's image region: an image of its size, white where the wall is shown "
+             "(a simulated procedure's region.png). Default: all of the image.")] = None,
     out: Annotated[Path | None, typer.Option(help="Write the JSON here instead of stdout.")
                    ] = None,
 ):
@@ -150,7 +159,8 @@ def coverage(
         raise InputError(f"folder for --out does not exist: {out.parent}")
     result = compute_coverage(SurfaceMesh.load(mesh), Lumen(_load_npy(lumen), name=str(lumen)),
                               _load_npy(poses), Camera.load(camera), segment_frames,
-                              progress=out is not None, poses_name=str(poses))
+                              progress=out is not None, poses_name=str(poses),
+                              region=_read_mask(region))
     if out is None:
         typer.echo(json.dumps(result.to_json(), indent=1))
     else:
@@ -327,14 +337,9 @@ def _yes(value) -> str:
 
 
 def _read_mask(mask: Path | None):
-    import cv2
+    from hybrid.types import read_mask
 
-    if mask is None:
-        return None
-    image = cv2.imread(str(mask), cv2.IMREAD_GRAYSCALE)
-    if image is None:
-        raise InputError(f"cannot read mask image {mask}")
-    return image > 127
+    return None if mask is None else read_mask(mask)
 
 
 def _print_warnings(warnings: list[str]) -> None:

@@ -200,12 +200,23 @@ class CoverageResult:
 
 
 class VisibilityOracle:
-    """Which mesh vertices a camera sees: in the image, in front, and not occluded."""
+    """Which mesh vertices a camera sees: in the image region, in front, and not occluded.
 
-    def __init__(self, mesh: SurfaceMesh, camera: Camera):
+    region: (height, width) bool mask of the pixels the endoscope shows (an octagon or circle
+    on real ones); None: the whole image.
+    """
+
+    def __init__(self, mesh: SurfaceMesh, camera: Camera, region: np.ndarray | None = None):
         self.mesh = mesh
         self.camera = camera
         self.scene = mesh.raycasting_scene()
+        if region is not None:
+            region = np.asarray(region)
+            if region.shape != (camera.height, camera.width) or region.dtype != bool:
+                raise InputError(f"the image region must be a bool mask of the camera's size "
+                                 f"{(camera.height, camera.width)}, got {region.dtype} "
+                                 f"{region.shape}")
+        self.region = region
 
     def visible(self, pose: np.ndarray, vertex_ids: np.ndarray) -> np.ndarray:
         """Boolean mask over vertex_ids for one camera-to-world pose."""
@@ -220,6 +231,11 @@ class VisibilityOracle:
         v = cam.fy * xc[:, 1] / zs + cam.cy
         mask = in_front & (u >= -0.5) & (u <= cam.width - 0.5) & (v >= -0.5) & (
             v <= cam.height - 0.5)
+        if self.region is not None:  # the pixel it projects into must be shown
+            inside = np.flatnonzero(mask)
+            column = np.clip(np.floor(u[inside] + 0.5), 0, cam.width - 1).astype(int)
+            row = np.clip(np.floor(v[inside] + 0.5), 0, cam.height - 1).astype(int)
+            mask[inside] = self.region[row, column]
         candidates = np.flatnonzero(mask)
         if candidates.size:
             rays = np.concatenate([np.broadcast_to(p, (candidates.size, 3)), rel[candidates]],
@@ -265,20 +281,21 @@ def compute_coverage(
     progress: bool = False,
     poses_name: str = "poses",
     segment_stride: int | None = None,
+    region: np.ndarray | None = None,
 ) -> CoverageResult:
     """Per-frame coverage for every frame and per-segment coverage for full segments.
 
     Segments start every segment_stride frames (default: segment_frames, i.e. back to back;
     a smaller stride gives overlapping windows, e.g. as training samples). Frames after the
     last full segment get per-frame values but no segment. poses_name names the poses in error
-    messages (e.g. their file).
+    messages (e.g. their file). region: the camera's image region (VisibilityOracle).
     """
     poses = check_poses(poses, name=poses_name)
     stride = segment_frames if segment_stride is None else segment_stride
     if segment_frames < 1 or stride < 1:
         raise InputError(f"segment length and stride must be at least 1 frame, got "
                          f"{segment_frames} and {stride}")
-    oracle = VisibilityOracle(mesh, camera)
+    oracle = VisibilityOracle(mesh, camera, region)
     oracle.check_inside(poses[:, :3, 3], lumen, name=poses_name)
     vertex_ell, _ = lumen.project(mesh.vertices)
     order = np.argsort(vertex_ell)

@@ -10,6 +10,8 @@ One folder per procedure:
     lumen.npy          (M, 3) float64 centerline from the rectum end, cm
     coverage.json      ground-truth coverage (see hybrid.coverage.CoverageResult.to_json)
     meta.json          seed, style, preset, configs and package version
+    region.png         the endoscope's image region (white inside), when it is not the whole
+                       image (`c2d2 simulate --octagon`); black in the RGB frames outside it
     cache/             derived arrays, each rebuilt when missing (window labels, the
                        coverage networks' inputs)
 
@@ -28,12 +30,13 @@ import cv2
 import numpy as np
 
 from hybrid.coverage import CoverageResult, SurfaceMesh
-from hybrid.types import Camera, InputError, check_poses
+from hybrid.types import Camera, InputError, check_poses, read_mask
 
 DEPTH_UNIT_CM = 0.002
 """One step of the 16-bit depth PNGs: 20 µm, so the largest depth is 131 cm."""
 REQUIRED_FILES = ("camera.json", "poses.npy", "colon.ply", "lumen.npy", "coverage.json",
                   "meta.json")
+REGION_FILE = "region.png"
 
 
 def window_labels_path(folder: Path, frames: int, stride: int) -> Path:
@@ -53,6 +56,10 @@ def write_rgb(path: Path, rgb: np.ndarray) -> None:
 def write_depth(path: Path, depth_cm: np.ndarray) -> None:
     steps = np.round(depth_cm / DEPTH_UNIT_CM).clip(0, np.iinfo(np.uint16).max)
     cv2.imwrite(str(path), steps.astype(np.uint16))
+
+
+def write_region(path: Path, region: np.ndarray) -> None:
+    cv2.imwrite(str(path), region.astype(np.uint8) * 255)
 
 
 def read_rgb(path: Path) -> np.ndarray:
@@ -89,6 +96,19 @@ class Procedure:
     @cached_property
     def camera(self) -> Camera:
         return Camera.load(self.path / "camera.json")
+
+    @cached_property
+    def region(self) -> np.ndarray:
+        """(H, W) bool: the pixels the endoscope shows (region.png; all of them without it)."""
+        shape = (self.camera.height, self.camera.width)
+        if not (self.path / REGION_FILE).is_file():
+            return np.ones(shape, dtype=bool)
+        region = read_mask(self.path / REGION_FILE, "image region")
+        if region.shape != shape or not region.any():
+            raise InputError(f"{self.path / REGION_FILE}: expected a non-empty mask of the "
+                             f"camera's size {shape}, got {region.shape}; simulate the "
+                             f"procedure again with `c2d2 simulate`")
+        return region
 
     @cached_property
     def poses(self) -> np.ndarray:

@@ -165,9 +165,8 @@ def _open(path: Path, fps: float | None, region: np.ndarray | None) -> _Source:
 
         proc = Procedure.open(path)
         frames = range(proc.num_frames)
-        region = np.ones((proc.camera.height, proc.camera.width), dtype=bool)
         return _Source(str(path), proc.camera.fps, lambda: map(proc.rgb, frames),
-                       proc.num_frames, region)
+                       proc.num_frames, proc.region)
     if path.is_dir():
         files = image_files(path)
         return _Source(str(path), fps or 30.0, lambda: map(read_image, files), len(files))

@@ -25,7 +25,6 @@ from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
-import cv2
 import numpy as np
 import torch
 
@@ -47,7 +46,7 @@ from hybrid.lumen_fit import FittedLumen
 from hybrid.npyio import NpyRows, NpyWriter
 from hybrid.reconstruction import ReconstructionConfig, reconstruct
 from hybrid.segment_geometry import LocalSegment, local_segment_coverage, save_maps
-from hybrid.types import Camera, InputError, failure_reason
+from hybrid.types import Camera, InputError, failure_reason, read_mask
 from learned.checkpoint import file_tag
 from learned.coverage_eval import CLASS_EDGES
 from learned.coverage_nets import (
@@ -154,7 +153,7 @@ class Models:
 
 def read_region(out: Path) -> np.ndarray:
     """(H, W) bool: the image region a work folder's ingest stage wrote."""
-    return cv2.imread(str(out / W.REGION), cv2.IMREAD_GRAYSCALE) > 127
+    return read_mask(out / W.REGION, "image region")
 
 
 def read_network_K(out: Path, height: int, width: int) -> np.ndarray:

@@ -10,6 +10,7 @@ import os
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 #: Image size (height, width) of each preset.
@@ -120,6 +121,15 @@ def check_depth(depth: np.ndarray, shape: tuple[int, int] | None, what: str) -> 
         raise InputError(f"{what}: depth has NaN, infinite or negative values; mark invalid "
                          f"pixels with 0")
     return depth
+
+
+def read_mask(path: Path, what: str = "mask") -> np.ndarray:
+    """(H, W) bool mask from an image file (grey above 127 is inside), or an InputError naming
+    `what`."""
+    image = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+    if image is None:
+        raise InputError(f"cannot read {what} image {path}")
+    return image > 127
 
 
 def chain_poses(relative: np.ndarray) -> np.ndarray:

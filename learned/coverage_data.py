@@ -154,13 +154,13 @@ def procedure_samples(path: Path, config: CoverageConfig, depth_model: DepthMode
 
 def true_depth(proc: Procedure, frames: Sequence[int] | None = None
                ) -> tuple[np.ndarray, np.ndarray]:
-    """The simulator's depth (N, H, W) of all frames, or of the given ones, and its region
-    (all of the image; the ablation)."""
+    """The simulator's depth (N, H, W) of all frames, or of the given ones, and the
+    procedure's image region (the ablation)."""
     frames = range(proc.num_frames) if frames is None else frames
     depth = np.stack([proc.depth(i) for i in frames])
     # No surface (looking out of the open rectum end): as far as the frame's farthest wall.
     depth = np.where(depth > 0, depth, depth.max(axis=(1, 2), keepdims=True))
-    return depth, np.ones(depth.shape[1:], dtype=bool)
+    return depth, proc.region
 
 
 def _network_outputs(proc: Procedure, depth_model: DepthModel | None, depth: bool,
@@ -193,7 +193,7 @@ def window_labels(proc: Procedure, frames: int, stride: int, progress: bool = Fa
     them for the coverage networks' windows)."""
     return _cached(window_labels_path(proc.path, frames, stride), lambda: compute_coverage(
         proc.mesh(), Lumen(proc.lumen), proc.poses, proc.camera, frames, progress=progress,
-        segment_stride=stride).window_table())
+        segment_stride=stride, region=proc.region).window_table())
 
 
 def _cached(path: Path, make) -> np.ndarray:

@@ -56,7 +56,7 @@ def scored_depths(model: DepthModel, seq: FrameSequence, count: int = 24
     of each (count, H, W)."""
     picks = np.linspace(0, seq.num_frames - 1, count).round().astype(int)
     with torch.no_grad():
-        depths = model.predict_depth(to_tensor(np.stack([seq.frame(t) for t in picks]),
+        depths = model.predict_depth(to_tensor(np.stack([seq.network_frame(t) for t in picks]),
                                                 device_of(model)))[:, 0].cpu().numpy()
     return picks, depths
 

@@ -3,8 +3,10 @@
 Real endoscope frames carry a black border (circular or octagonal mask, overlays). The image
 region is detected from the frames (pixels that are ever bright: 24 sampled images of a
 folder, every frame of a video), the frames are cropped to its bounding box and resized; the
-region becomes a mask so that losses ignore the border. `Crop` maps intrinsics back to the
-input's own pixels. A video is streamed into a temporary file of network-sized frames.
+region becomes a mask so that losses ignore the border. The networks read each frame with its
+border filled by the nearest pixels inside (`FrameSequence.network_frame`): they learned on
+the simulator's whole images. `Crop` maps intrinsics back to the input's own pixels. A video
+is streamed into a temporary file of network-sized frames.
 """
 
 from __future__ import annotations
@@ -21,6 +23,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+from scipy.ndimage import distance_transform_edt
 
 from hybrid.types import Camera, InputError
 
@@ -72,6 +75,13 @@ class Crop:
                       full.cx + self.x0, full.cy + self.y0, camera.fps)
 
 
+def nearest_inside(region: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(rows, columns), each (H, W): for every pixel the nearest pixel of the (H, W) bool
+    region (itself inside it), so that image[rows, columns] fills the border from within."""
+    _, (rows, columns) = distance_transform_edt(~region, return_indices=True)
+    return rows, columns
+
+
 def detect_region(frames: list[np.ndarray]) -> np.ndarray:
     """(H, W) bool image region: pixels ever brighter than the border, largest component.
 
@@ -115,6 +125,7 @@ class FrameSequence:
         self._depth = depth_loader
         self.poses = poses
         self._fitted = crop is not None
+        self._fill: tuple[np.ndarray, np.ndarray] | None = None
         self.camera = None if camera is None else camera.resized(size[1], size[0])
         first = loader(0)
         if first.ndim != 3 or first.shape[2] != 3:
@@ -141,6 +152,18 @@ class FrameSequence:
         """RGB uint8 (H, W, 3) at network size."""
         image = self._load(index)
         return image if self._fitted else self.crop.fit(image, self.size, cv2.INTER_AREA)
+
+    def network_frame(self, index: int) -> np.ndarray:
+        """The frame as the depth and motion networks read it: outside the image region each
+        pixel takes the colour of the nearest pixel inside. Black corners made the shipped
+        coverage read 0.01 lower on the simulator's octagon views (docs/coverage.md, "The
+        image region"); the losses still compare pixels inside the region only."""
+        image = self.frame(index)
+        if self.region.all():
+            return image
+        if self._fill is None:
+            self._fill = nearest_inside(self.region)
+        return image[self._fill]
 
     def depth(self, index: int) -> np.ndarray | None:
         """Ground-truth z-depth at network size (simulated inputs only)."""
@@ -194,12 +217,13 @@ def open_sequence(path: Path, size: tuple[int, int], region: np.ndarray | None =
 def is_procedure(path: Path, fps: float | None = None, region: np.ndarray | None = None
                  ) -> bool:
     """Whether `path` is a simulated procedure (a folder with rgb/ and camera.json); one given
-    a frame rate or an image region is refused (it has its own, and no border)."""
+    a frame rate or an image region is refused (it has its own of each)."""
     path = Path(path)
     if not (path.is_dir() and (path / "rgb").is_dir() and (path / "camera.json").is_file()):
         return False
     if region is not None:
-        raise InputError(f"{path}: a simulated procedure has no border; drop the mask")
+        raise InputError(f"{path}: a simulated procedure has its own image region; drop the "
+                         f"mask")
     if fps is not None:
         raise InputError(f"{path}: a simulated procedure has its own frame rate; drop --fps")
     return True
@@ -209,9 +233,8 @@ def _simulated(path: Path, size: tuple[int, int]) -> FrameSequence:
     from hybrid.dataset import Procedure
 
     proc = Procedure.open(path)
-    region = np.ones((proc.camera.height, proc.camera.width), dtype=bool)
     return FrameSequence(str(path), proc.camera.fps, size, proc.rgb, proc.num_frames,
-                         region=region, camera=proc.camera, depth_loader=proc.depth,
+                         region=proc.region, camera=proc.camera, depth_loader=proc.depth,
                          poses=proc.poses)
 
 

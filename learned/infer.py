@@ -107,7 +107,7 @@ def infer_sequence(model: DepthModel, seq: FrameSequence, gaps: tuple[int, ...] 
     for start in tqdm(range(frames.start, frames.stop, batch), desc=f"infer {seq.name}",
                       disable=not progress, unit="batch"):
         ids = range(start, min(start + batch, frames.stop))
-        images = to_tensor(np.stack([seq.frame(i) for i in ids]), device_of(model))
+        images = to_tensor(np.stack([seq.network_frame(i) for i in ids]), device_of(model))
         if depth:
             predicted = model.predict_depth(images)[:, 0].cpu().numpy()
             if depth_out is None:

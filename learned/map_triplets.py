@@ -117,7 +117,7 @@ class MapTriplets:
             found = self.maps[k]
             height, width = seq.size
             f = found.fx[found.stretch[t]]
-            frames.append(np.stack([seq.frame(i) for i in (t - gap, t, t + gap)]))
+            frames.append(np.stack([seq.network_frame(i) for i in (t - gap, t, t + gap)]))
             regions.append(seq.region)
             Ks.append([[f, 0, (width - 1) / 2], [0, f * found.fy_over_fx, (height - 1) / 2],
                        [0, 0, 1]])

@@ -115,7 +115,7 @@ class TripletSampler:
             seq = self.sequences[k]
             between = [t - gap + round(j * gap / self.chain_steps)
                        for j in range(1, self.chain_steps)]
-            frames.append(np.stack([seq.frame(i) for i in (t - gap, t, t + gap, *between)]))
+            frames.append(np.stack([seq.network_frame(i) for i in (t - gap, t, t + gap, *between)]))
             regions.append(seq.region)
         return (to_tensor(np.stack(frames), device),
                 torch.from_numpy(np.stack(regions))[:, None].to(device))
@@ -165,10 +165,11 @@ def validate(model: DepthModel, sequences: list[FrameSequence], frames_per_seque
         for seq in sequences:
             gap = max(1, round(seq.fps * model.config.pair_gap_s))
             picks = np.linspace(gap, seq.num_frames - 1, frames_per_sequence).round().astype(int)
-            images = to_tensor(np.stack([seq.frame(t) for t in picks]), device_of(model))
+            images = to_tensor(np.stack([seq.network_frame(t) for t in picks]), device_of(model))
             depth = model.depth(images)[:, 0].cpu().numpy()  # the network's own, one view
             errors += [mre(d, seq.depth(t), seq.region) for d, t in zip(depth, picks, strict=True)]
-            previous = to_tensor(np.stack([seq.frame(t - gap) for t in picks]), device_of(model))
+            previous = to_tensor(np.stack([seq.network_frame(t - gap) for t in picks]),
+                                 device_of(model))
             K = model.pair_motion(previous, images)[-1].mean(0).cpu().numpy()
             err = intrinsics_error(K, seq.camera.K, seq.camera.width, seq.camera.height)
             focal.append(0.5 * (err["fx_rel"] + err["fy_rel"]))

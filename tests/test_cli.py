@@ -94,6 +94,37 @@ def test_cli_reproduces_simulated_ground_truth(tmp_path, simulated):
     assert json.loads(result.stdout) == stored
 
 
+def test_cli_coverage_within_an_image_region(tmp_path, cylinder):
+    """--region: the left half of the image as a PNG gives the in-process coverage with that
+    region (less than without); a missing or wrongly sized region image is named."""
+    import cv2
+
+    paths = write_inputs(tmp_path, cylinder.vertices, cylinder.triangles, cylinder.lumen,
+                         np.stack(VIEWS), CAMERA)
+    left = np.zeros((CAMERA.height, CAMERA.width), dtype=bool)
+    left[:, :CAMERA.width // 2] = True
+    cv2.imwrite(str(tmp_path / "left.png"), left.astype(np.uint8) * 255)
+    result = run_coverage(*paths.values(), "--segment-frames", "3", "--region",
+                          str(tmp_path / "left.png"))
+    assert result.exit_code == 0, result.output
+    mesh = SurfaceMesh.from_arrays(cylinder.vertices, cylinder.triangles)
+    within = compute_coverage(mesh, Lumen(cylinder.lumen), np.stack(VIEWS), CAMERA,
+                              segment_frames=3, region=left).to_json()
+    whole = compute_coverage(mesh, Lumen(cylinder.lumen), np.stack(VIEWS), CAMERA,
+                             segment_frames=3).to_json()
+    for pair in DELTA_PAIRS_CM:
+        key = pair_key(pair)
+        got = json.loads(result.stdout)["per_frame"][key]
+        assert got == pytest.approx(within["per_frame"][key], abs=1e-12)
+        assert got[0] < whole["per_frame"][key][0]
+    missing = run_coverage(*paths.values(), "--region", str(tmp_path / "absent.png"))
+    assert_fails_naming(missing, tmp_path, "absent.png")
+    cv2.imwrite(str(tmp_path / "small.png"), left[1:].astype(np.uint8) * 255)
+    message = assert_fails_naming(run_coverage(*paths.values(), "--region",
+                                               str(tmp_path / "small.png")), tmp_path, "region")
+    assert "bool mask of the camera's size (48, 64)" in unboxed(message)
+
+
 # --- bad input -----------------------------------------------------------------------------
 
 @pytest.fixture(scope="module")

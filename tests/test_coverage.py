@@ -85,6 +85,31 @@ def test_single_frame_equals_vertex_count(cylinder, mesh, lumen, name, camera, v
         assert result.per_frame[pair_key((d0, d1))][0] == pytest.approx(expected, abs=1e-6)
 
 
+def test_only_the_image_region_sees(cylinder, mesh, lumen):
+    """With the left half of the image as its region the camera sees exactly the band vertices
+    that project into a pixel column left of the middle (u < W/2 - 0.5); the whole image as the
+    region is no region; a region of another size is refused."""
+    camera, view = FORWARD_CAMERA, FORWARD_OFF_AXIS
+    left = np.zeros((camera.height, camera.width), dtype=bool)
+    left[:, :camera.width // 2] = True
+    result = compute_coverage(mesh, lumen, view[None], camera, segment_frames=1, region=left)
+    whole = compute_coverage(mesh, lumen, view[None], camera, segment_frames=1,
+                             region=np.ones_like(left))
+    plain = compute_coverage(mesh, lumen, view[None], camera, segment_frames=1)
+    xc = (cylinder.vertices - view[:3, 3]) @ view[:3, :3]
+    u = camera.fx * xc[:, 0] / np.where(xc[:, 2] > 0, xc[:, 2], 1.0) + camera.cx
+    seen = in_image(camera, view, cylinder.vertices) & (u < camera.width / 2 - 0.5)
+    z = cylinder.ring_z
+    for d0, d1 in DELTA_PAIRS_CM:
+        key = pair_key((d0, d1))
+        expected = seen[(z >= ELL + d0) & (z <= ELL + d1)].mean()
+        assert 0 < expected < plain.per_frame[key][0]
+        assert result.per_frame[key][0] == pytest.approx(expected, abs=1e-6)
+        assert whole.per_frame[key] == plain.per_frame[key]
+    with pytest.raises(InputError, match="bool mask of the camera's size"):
+        compute_coverage(mesh, lumen, view[None], camera, region=left[:, 1:])
+
+
 def test_looking_backwards_sees_nothing_of_the_band(mesh, lumen):
     result = compute_coverage(mesh, lumen, BACKWARD[None], FORWARD_CAMERA, segment_frames=1)
     for pair in DELTA_PAIRS_CM:

@@ -123,6 +123,37 @@ def test_the_region_is_resized_by_pixel_centres_like_the_frames():
     np.testing.assert_array_equal(small, small[::-1])
 
 
+def test_the_networks_read_the_border_filled_from_inside_and_nothing_of_it(tmp_path):
+    """network_frame: inside the region the frame itself, outside it the colour of the nearest
+    pixel inside; so what the border holds (black, or noise beyond the few pixels that the
+    resize blends into the region's edge) never reaches the depth and motion networks, and a
+    frame without border is read as it is."""
+    frames = [disc_frame(seed=s) for s in range(3)]
+    region = detect_region(frames)
+    near = cv2.dilate(region.astype(np.uint8), np.ones((7, 7), np.uint8)).astype(bool)
+    noisy = [np.where(near[..., None], f, np.random.default_rng(9).integers(0, 255, f.shape))
+             .astype(np.uint8) for f in frames]
+    seqs = [FrameSequence(name, 30.0, (64, 96), images.__getitem__, 3, region=region)
+            for name, images in (("black", frames), ("noisy", noisy))]
+    black, other = seqs
+    image, small = black.network_frame(1), black.region
+    np.testing.assert_array_equal(image[small], black.frame(1)[small])
+    np.testing.assert_array_equal(image, other.network_frame(1))
+    assert not np.array_equal(black.frame(1), other.frame(1))
+    inside = np.argwhere(small)
+    for row, column in np.argwhere(~small)[::50]:
+        nearest = np.hypot(*(inside - (row, column)).T)
+        assert any((image[row, column] == image[r, c]).all()
+                   for r, c in inside[nearest == nearest.min()]), (row, column)
+    model = DepthModel(TINY).eval()
+    first, second = (infer_sequence(model, seq, (1,)) for seq in seqs)
+    np.testing.assert_array_equal(first.depth, second.depth)
+    np.testing.assert_array_equal(first.relative[1], second.relative[1])
+    whole = FrameSequence("whole", 30.0, (64, 96), frames.__getitem__, 3,
+                          region=np.ones((100, 120), bool))
+    np.testing.assert_array_equal(whole.network_frame(2), whole.frame(2))
+
+
 def test_crop_maps_network_intrinsics_back_to_the_input(tmp_path):
     folder = write_images(tmp_path / "frames", [disc_frame(seed=s) for s in range(3)])
     seq = open_sequence(folder, (64, 96))

@@ -107,7 +107,7 @@ def test_normalised_input_is_log_depth_over_its_median():
     out = normalise_depth(depth, region, (8, 10))
     median = np.median(depth[0][region])
     assert out.shape == (1, 1, 8, 10)
-    assert out[0, 0, 0, 0] == 0.0
+    assert out[0, 0, 0, 0] == pytest.approx(np.log(2.0 / median))  # its nearest inside
     assert np.allclose(out[0, 0, 4, :5], np.log(2.0 / median))
     assert np.allclose(out[0, 0, 4, 5:], np.log(8.0 / median))
     # Scale invariance: depth known up to scale gives the same input.
@@ -117,6 +117,30 @@ def test_normalised_input_is_log_depth_over_its_median():
     assert np.allclose(own, out + np.log(median), atol=1e-6)
     assert np.allclose(normalise_depth(depth * 7.5, region, (8, 10), by_median=False),
                        own + np.log(7.5), atol=1e-6)
+
+
+def test_outside_the_region_the_input_is_that_of_the_nearest_pixel_inside():
+    """Each pixel outside the region (here the image's corners cut off) takes the value of
+    the inside pixel nearest to it; inside, and for a region of the whole image, the input is
+    log(depth / median) exactly."""
+    from hybrid.sim.simulate import octagon_region
+
+    rng = np.random.default_rng(3)
+    depth = rng.uniform(0.5, 6.0, (2, 12, 16)).astype(np.float32)
+    region = octagon_region(12, 16, 4)
+    out = normalise_depth(depth, region, (12, 16))[:, 0]
+    median = np.median(depth[:, region], axis=1)[:, None, None]
+    expected = np.log(depth / median)
+    np.testing.assert_allclose(out[:, region], expected[:, region], rtol=1e-6)
+    inside = np.argwhere(region)
+    for row, column in np.argwhere(~region):
+        nearest = np.hypot(*(inside - (row, column)).T)
+        candidates = inside[nearest == nearest.min()]
+        assert any(np.allclose(out[:, row, column], expected[:, r, c], rtol=1e-6)
+                   for r, c in candidates), (row, column)
+    whole = np.ones_like(region)
+    np.testing.assert_array_equal(normalise_depth(depth, whole, (12, 16))[:, 0],
+                                  np.log(depth / np.median(depth, axis=(1, 2))[:, None, None]))
 
 
 def test_powered_input_is_that_of_the_depth_raised_to_the_power():

@@ -809,12 +809,33 @@ def test_a_frame_rate_or_mask_for_a_simulated_procedure_is_refused_before_any_fi
     with pytest.raises(InputError, match="its own frame rate; drop --fps"):
         ingest(procedure.path, (128, 160), tmp_path / "frames.npy", fps=FPS * 2)
     mask = np.ones((procedure.camera.height, procedure.camera.width), bool)
-    with pytest.raises(InputError, match="has no border; drop the mask"):
+    with pytest.raises(InputError, match="has its own image region; drop the mask"):
         ingest(procedure.path, (128, 160), tmp_path / "frames.npy", mask)
     work = tmp_path / "work"
     message = assert_input_error(runner.invoke(app, ["run", str(procedure.path), "--out",
                                                      str(work), "--fps", "15"]), "drop --fps")
     assert "simulated procedure" in message and not work.exists()
+
+
+def test_a_simulated_octagon_is_the_region_ingested_and_the_one_detected(sim_config, tmp_path):
+    """`c2d2 simulate --octagon`: ingest and open_sequence take the procedure's own region,
+    and detection on its frames (as for a video of them) finds it, less its 2-px rim."""
+    from scipy.ndimage import binary_erosion
+
+    from hybrid.ingest import ingest
+    from hybrid.sim.simulate import simulate_procedure, with_overrides
+    from learned.frames import detect_region, open_sequence
+
+    config = replace(with_overrides(sim_config, max_frames=8), corner_cut=(0.25, 0.25))
+    octagon = Procedure.open(simulate_procedure(tmp_path, 3, 0, config))
+    region = octagon.region
+    assert not region.all()
+    _, ingested = ingest(octagon.path, region.shape, tmp_path / "frames.npy")
+    np.testing.assert_array_equal(ingested, region)
+    np.testing.assert_array_equal(open_sequence(octagon.path, region.shape).region, region)
+    detected = detect_region([octagon.rgb(i) for i in range(octagon.num_frames)])
+    assert not (detected & ~region).any()
+    assert detected[binary_erosion(region, np.ones((5, 5)), border_value=0)].all()
 
 
 def test_ingest_refuses_an_image_region_too_thin_to_judge_frames_by(frames, tmp_path):

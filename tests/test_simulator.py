@@ -12,7 +12,7 @@ import pytest
 from conftest import make_cylinder
 from scipy.ndimage import binary_dilation
 
-from hybrid.coverage import Lumen
+from hybrid.coverage import Lumen, compute_coverage
 from hybrid.dataset import Procedure, window_labels_path
 from hybrid.sim.appearance import TEXELS_PER_CM, get_style
 from hybrid.sim.colon import Colon, ColonConfig, make_colon
@@ -21,8 +21,10 @@ from hybrid.sim.simulate import (
     SimConfig,
     draw_camera,
     draw_scene,
+    octagon_region,
     simulate_dataset,
     simulate_procedure,
+    with_overrides,
 )
 from hybrid.sim.trajectory import TrajectoryConfig, make_withdrawal
 from hybrid.types import Camera, InputError, check_poses
@@ -123,6 +125,39 @@ def test_frame_step_keeps_every_kth_frame_with_its_truth(tmp_path, simulated, si
     for bad in (0, 3):  # not a divisor of the 20-frame segments
         with pytest.raises(ValueError, match="frame_step must be a positive divisor"):
             replace(sim_config, frame_step=bad)
+
+
+def test_an_octagon_blacks_out_the_corners_and_hides_them_from_the_truth(tmp_path, sim_config):
+    """corner_cut: the same procedure, its frames black outside an octagon of the drawn cut
+    (region.png), its depth unchanged, and a truth that counts only the wall shown inside.
+    (A 30 cm colon: the 14 cm one's camera starts too near the cecum to see any of V.)"""
+    cut, config = 0.25, with_overrides(sim_config, length_cm=30.0)
+    full = Procedure.open(simulate_procedure(tmp_path / "full", 7, 0, config))
+    octagon = Procedure.open(simulate_procedure(tmp_path / "octagon", 7, 0,
+                                                replace(config, corner_cut=(cut, cut))))
+    region = octagon.region
+    height, width = region.shape
+    legs = cut * min(height, width)
+    assert region.sum() == pytest.approx(height * width - 2 * legs**2, rel=0.03)  # 4 triangles
+    assert not region[0, 0] and not region[-1, -1] and region[height // 2].all()
+    assert np.array_equal(region, octagon_region(height, width, legs))
+    assert np.array_equal(full.region, np.ones_like(region))  # no region.png: the whole image
+    for i in (0, 20, 39):
+        assert np.array_equal(octagon.rgb(i)[region], full.rgb(i)[region])
+        assert octagon.rgb(i)[~region].max() == 0 < full.rgb(i)[~region].max()
+        assert np.array_equal(octagon.depth(i), full.depth(i))
+    fewer = 0
+    for key, values in full.coverage.per_frame.items():
+        shown = np.array(octagon.coverage.per_frame[key], dtype=float)
+        assert (shown <= np.array(values, dtype=float) + 1e-12).all(), key
+        fewer += int((shown < np.array(values, dtype=float) - 1e-3).sum())
+    assert fewer > 0
+    recomputed = compute_coverage(octagon.mesh(), Lumen(octagon.lumen), octagon.poses,
+                                  octagon.camera, sim_config.segment_frames, region=region)
+    assert recomputed.to_json() == octagon.coverage.to_json()
+    for bad in ((0.3, 0.2), (0.1, 0.5)):
+        with pytest.raises(ValueError, match="corner_cut must be"):
+            replace(sim_config, corner_cut=bad)
 
 
 def test_window_labels_come_with_the_truth(tmp_path, simulated, sim_config):

@@ -23,10 +23,12 @@ from tqdm import tqdm
 from hybrid import __version__
 from hybrid.coverage import Lumen, SurfaceMesh, compute_coverage
 from hybrid.dataset import (
+    REGION_FILE,
     REQUIRED_FILES,
     frame_name,
     window_labels_path,
     write_depth,
+    write_region,
     write_rgb,
 )
 from hybrid.sim.appearance import get_style, make_texture
@@ -61,6 +63,11 @@ class SimConfig:
     procedure i of this seed gets (same config), and everything else stays its own seed's:
     datasets of two styles can then share their cameras, so that style says nothing about
     the field of view (docs/depth.md, "Cameras shared by the styles")."""
+    corner_cut: tuple[float, float] | None = None
+    """The endoscope's image region. None: the whole image. (lo, hi): an octagon, the image
+    with its corners cut off along 45° lines whose legs are a fraction drawn in [lo, hi] of
+    the image's shorter side, as on real endoscopes (`OCTAGON_CUT`, docs/simulator.md). The
+    frames are black outside it, and the ground truth counts only the wall shown inside it."""
     segment_frames: int = 300
     """Frames per coverage segment."""
     frame_step: int | None = None
@@ -82,10 +89,19 @@ class SimConfig:
                              f"the rectum)")
         if self.trajectory.max_frames is not None and self.trajectory.max_frames < 1:
             raise ValueError("max_frames must be at least 1")
+        if self.corner_cut is not None and not 0 <= self.corner_cut[0] <= self.corner_cut[1] < 0.5:
+            raise ValueError(f"corner_cut must be (lo, hi) with 0 <= lo <= hi < 0.5 of the "
+                             f"shorter side, got {self.corner_cut}")
         if self.frame_step is not None and (self.frame_step < 1
                                             or self.segment_frames % self.frame_step):
             raise ValueError(f"frame_step must be a positive divisor of the {self.segment_frames}"
                              f"-frame segments, got {self.frame_step}")
+
+
+OCTAGON_CUT = (0.15, 0.25)
+"""`c2d2 simulate --octagon`'s corner_cut: 4-10% of the image outside, as the real footage in
+../shared/data, whose corner cuts are 0.16-0.25 of its shorter side with 4-8% outside
+(benchmarks/region_corners.py, docs/simulator.md)."""
 
 
 def procedure_name(index: int) -> str:
@@ -103,12 +119,31 @@ def draw_camera(config: SimConfig, rng: np.random.Generator) -> Camera:
                   fps=config.trajectory.fps)
 
 
+def octagon_region(height: int, width: int, cut_px: float) -> np.ndarray:
+    """(height, width) bool: the image without four right-angled corners whose legs are
+    cut_px pixels long (a pixel is inside when its centre is)."""
+    x = np.minimum(np.arange(width), width - 1 - np.arange(width)) + 0.5
+    y = np.minimum(np.arange(height), height - 1 - np.arange(height)) + 0.5
+    return y[:, None] + x[None, :] >= cut_px
+
+
+def draw_region(config: SimConfig, camera: Camera, seed: int, index: int) -> np.ndarray | None:
+    """Procedure `index`'s image region, None for the whole image. Drawn from a generator of
+    its own, so a procedure with a region is the one without, its corners blacked out."""
+    if config.corner_cut is None:
+        return None
+    fraction = np.random.default_rng([seed, index, 1]).uniform(*config.corner_cut)
+    return octagon_region(camera.height, camera.width,
+                          fraction * min(camera.height, camera.width))
+
+
 @dataclass
 class Scene:
     """One procedure in memory: what it is rendered from, and the generator to render with."""
 
     colon: Colon
     camera: Camera
+    region: np.ndarray | None
     poses: np.ndarray
     renderer: ColonRenderer
     rng: np.random.Generator
@@ -127,8 +162,8 @@ def draw_scene(config: SimConfig, seed: int, index: int) -> Scene:
     style = get_style(config.style)
     circumference = 2 * np.pi * float(np.mean(config.colon.radius_range_cm))
     texture = make_texture(config.colon.length_cm, circumference, style, rng)
-    return Scene(colon, camera, poses, ColonRenderer(colon, texture, style, camera,
-                                                     circumference), rng)
+    return Scene(colon, camera, draw_region(config, camera, seed, index), poses,
+                 ColonRenderer(colon, texture, style, camera, circumference), rng)
 
 
 def simulate_procedure(out_dir: Path, seed: int, index: int, config: SimConfig,
@@ -152,11 +187,13 @@ def simulate_procedure(out_dir: Path, seed: int, index: int, config: SimConfig,
 
     scene = draw_scene(config, seed, index)
     step = config.frame_step or 1
-    colon, poses = scene.colon, scene.poses[::step]
+    colon, poses, region = scene.colon, scene.poses[::step], scene.region
     camera = replace(scene.camera, fps=scene.camera.fps / step)
     for i in tqdm(range(len(poses)), desc=f"render {final.name}", unit="frame",
                   disable=not progress, leave=False):
         rgb, depth = scene.renderer.render(poses[i], scene.rng)
+        if region is not None:
+            rgb[~region] = 0
         write_rgb(work / "rgb" / frame_name(i), rgb)
         write_depth(work / "depth" / frame_name(i), depth)
     del scene  # free the texture and the render scene before labelling
@@ -165,11 +202,13 @@ def simulate_procedure(out_dir: Path, seed: int, index: int, config: SimConfig,
     np.save(work / "lumen.npy", colon.centerline)
     np.save(work / "poses.npy", poses)
     camera.save(work / "camera.json")
+    if region is not None:
+        write_region(work / REGION_FILE, region)
     # Ground truth from the files just written, so `c2d2 coverage` on them gives the same.
     coverage = compute_coverage(SurfaceMesh.load(work / "colon.ply"),
                                 Lumen(np.load(work / "lumen.npy")), poses, camera,
                                 segment_frames=segment_frames, progress=progress,
-                                segment_stride=window_stride)
+                                segment_stride=window_stride, region=region)
     coverage.back_to_back().save(work / "coverage.json")
     if window_stride:
         windows = window_labels_path(work, segment_frames, window_stride)

@@ -1,0 +1,95 @@
+"""Why the learned coverage reads lower through an image region: its stage redone with one
+input at a time taken from the run of the same procedure without the region.
+
+--octagon holds the `c2d2 eval` work folders of procedures simulated with `--octagon`, --full
+those of the same procedures without it (the same seeds: inside the region the frames are
+identical). For each variant the learned stage (and the report) of `c2d2 run` is redone in a
+scratch folder that links the octagon run's files but takes the named ones from the full
+run's folder, or, for "no region", an all-white region.png (the coverage network then reads
+the depth network's values in the corners instead of the constant it is given outside the
+region). Printed per variant: the segment MAE and bias of the learned coverage against the
+octagon procedures' truth, and against the full run's learned values.
+
+    python benchmarks/region_learned.py --octagon data/eval-octagon-h2 \
+        --full data/eval-s54-final-h2 --data data/heldout2-octagon \
+        --variants "no region" "full depth" "full travel"
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from hybrid import workdir as W
+from hybrid.coverage import pair_key
+from hybrid.dataset import Procedure
+from hybrid.pipeline import Models, RunConfig, run_video
+
+VARIANTS = {"as run": (), "no region": ("region",), "full depth": (W.DEPTH,),
+            "full travel": (W.RELATIVE,), "full depth and travel": (W.DEPTH, W.RELATIVE)}
+REDONE = {W.LEARNED, W.COVERAGE_JSON, W.COVERAGE_CSV, W.REPORT}
+
+
+def learned_values(octagon: Path, full: Path, source: Path, taken: tuple[str, ...],
+                   models: Models) -> list[float]:
+    """The learned segment coverage of `source` with the files `taken` from the full run."""
+    with tempfile.TemporaryDirectory() as scratch:
+        work = Path(scratch) / octagon.name
+        work.mkdir()
+        for item in octagon.iterdir():
+            if item.name in REDONE:
+                continue
+            given = full / item.name if item.name in taken else item
+            (work / item.name).symlink_to(given.resolve())
+        if "region" in taken:
+            (work / W.REGION).unlink()
+            shape = np.load(work / W.DEPTH, mmap_mode="r").shape[1:]
+            W.write_png(work / W.REGION, np.full(shape, 255, np.uint8))
+        run_video(source, work, models=models, progress=False, echo=lambda _: None)
+        record = json.loads((work / W.LEARNED).read_text())
+        shutil.rmtree(work)
+    return [s["coverage"] for s in record["segments"]]
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--octagon", type=Path, required=True)
+    parser.add_argument("--full", type=Path, required=True)
+    parser.add_argument("--data", type=Path, required=True, help="the octagon procedures")
+    parser.add_argument("--variants", nargs="+", default=list(VARIANTS), choices=VARIANTS)
+    args = parser.parse_args()
+    models = Models.load(RunConfig())
+    rows: dict[str, list[tuple[float, float, float]]] = {v: [] for v in args.variants}
+    for octagon in sorted(p for p in args.octagon.iterdir() if (p / W.LEARNED).is_file()):
+        full = _twin(octagon, args.full)
+        procedure = Procedure.open(args.data / octagon.name.split("-")[-1])
+        key = pair_key(procedure.coverage.default_pair)
+        truth = [s.coverage[key] for s in procedure.coverage.segments]
+        before = [s["coverage"] for s in json.loads((full / W.LEARNED).read_text())["segments"]]
+        for variant in args.variants:
+            values = learned_values(octagon, full, procedure.path, VARIANTS[variant], models)
+            rows[variant] += list(zip(values, truth, before, strict=True))
+        print(octagon.name, " ".join(f"{v}: {np.round(rows[v][-len(truth):], 3)[:, 0]}"
+                                     for v in args.variants), flush=True)
+    for variant, values in rows.items():
+        value, truth, before = np.array(values).T
+        print(f"{variant:24s} MAE {np.abs(value - truth).mean():.4f} bias "
+              f"{(value - truth).mean():+.4f}; against the full run's learned: mean "
+              f"{(value - before).mean():+.4f} ({len(value)} segments)")
+
+
+def _twin(octagon: Path, full: Path) -> Path:
+    """The full run's work folder of the same procedure (named ...-proc_NNNN)."""
+    found = [p for p in full.iterdir() if p.name.endswith(octagon.name.split("-")[-1])]
+    if len(found) != 1:
+        raise SystemExit(f"{full}: expected one work folder of {octagon.name}, found {found}")
+    return found[0]
+
+
+if __name__ == "__main__":
+    main()
