@@ -1,5 +1,8 @@
 """The motion net's rotation over the pair gap: estimated directly, or chained from small steps.
 
+Whole-image procedures only: it feeds their frames to the networks as they are, where c2d2
+fills the black corners of ones simulated with `--octagon` (FrameSequence.network_frame).
+
 For simulated procedures, every `--every` frames t: the rotation from frame t - gap to t (gap:
 the model's pair_gap_s) as the motion net estimates it from that pair, and as the composition
 of its estimates between consecutive frames (`--steps 1`) or every few frames. Prints per camera

@@ -1,5 +1,8 @@
 """Where a trained depth model sits against the truth, and how sharply the loss separates them.
 
+Whole-image procedures only: it feeds their frames to the networks as they are, where c2d2
+fills the black corners of ones simulated with `--octagon` (FrameSequence.network_frame).
+
 On simulated procedures, for triplets every `--every` frames:
   1. The training loss (learned.losses.view_synthesis_loss, the model's own config) at the
      truth (true depth, motion and K) and at the model's prediction. A model whose loss is

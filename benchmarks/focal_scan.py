@@ -1,5 +1,8 @@
 """Training loss against the focal length, with true depth and true motion.
 
+Whole-image procedures only: it feeds their frames to the networks as they are, where c2d2
+fills the black corners of ones simulated with `--octagon` (FrameSequence.network_frame).
+
 Runs the training loss (`learned.losses.view_synthesis_loss`, default config) on triplets of
 simulated procedures with their true depth and poses, scaling the true K's focal lengths. If the
 minimum sits at scale 1, the loss itself is unbiased in K and any drift of the learned focal

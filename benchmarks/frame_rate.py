@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from hybrid.coverage import Lumen, compute_coverage
-from hybrid.dataset import Procedure, frame_name
+from hybrid.dataset import REGION_FILE, Procedure, frame_name
 
 
 def subsample(proc: Procedure, every: int, out: Path) -> Path:
@@ -41,8 +41,9 @@ def subsample(proc: Procedure, every: int, out: Path) -> Path:
         (work / kind).mkdir(parents=True)
         for new, old in enumerate(range(0, proc.num_frames, every)):
             _link(proc.path / kind / frame_name(old), work / kind / frame_name(new))
-    for name in ("colon.ply", "lumen.npy"):
-        _link(proc.path / name, work / name)
+    for name in ("colon.ply", "lumen.npy", REGION_FILE):
+        if (proc.path / name).is_file():  # region.png: only with --octagon
+            _link(proc.path / name, work / name)
     camera = replace(proc.camera, fps=proc.camera.fps / every)
     camera.save(work / "camera.json")
     poses = proc.poses[::every]
@@ -51,8 +52,8 @@ def subsample(proc: Procedure, every: int, out: Path) -> Path:
     meta = json.loads((proc.path / "meta.json").read_text()) | {
         "every_kth_frame": every, "num_frames": len(poses)}
     (work / "meta.json").write_text(json.dumps(meta, indent=1))
-    compute_coverage(proc.mesh(), Lumen(proc.lumen), poses, camera,
-                     segment_frames // every).save(work / "coverage.json")
+    compute_coverage(proc.mesh(), Lumen(proc.lumen), poses, camera, segment_frames // every,
+                     region=proc.region).save(work / "coverage.json")
     work.rename(final)
     return final
 

@@ -59,7 +59,7 @@ def changed(args: argparse.Namespace, path: Path, size: tuple[int, int]) -> Fram
         alter = change(args, style, cam.height, cam.width)
         load = lambda i: alter(i, proc.rgb(i))  # noqa: E731
     return FrameSequence(str(path), cam.fps, size, load, proc.num_frames,
-                         region=np.ones((cam.height, cam.width), dtype=bool), camera=cam)
+                         region=proc.region, camera=cam)
 
 
 def _uint8(image: np.ndarray) -> np.ndarray:

@@ -1,5 +1,8 @@
 """How sharply the photometric loss singles out the truth on simulated procedures.
 
+Whole-image procedures only: it feeds their frames to the networks as they are, where c2d2
+fills the black corners of ones simulated with `--octagon` (FrameSequence.network_frame).
+
 With the true depth, pose and K, warp a source frame `gap` frames away into the target and
 measure the photometric error (L1 and 1-SSIM at several windows) over valid, non-specular
 pixels; then again with the focal length 20% short, a 1° rotation offset, and the depth 30%

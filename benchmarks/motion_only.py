@@ -1,5 +1,8 @@
 """Learn motion and intrinsics alone, with the true depth given: does K converge?
 
+Whole-image procedures only: it feeds their frames to the networks as they are, where c2d2
+fills the black corners of ones simulated with `--octagon` (FrameSequence.network_frame).
+
 Trains a fresh MotionNet (fast preset) with the training loss on simulated procedures whose
 true depth replaces the depth network, and prints the focal length it predicts on held-out
 procedures relative to their true one, and the ratio of predicted to true rotation angle over

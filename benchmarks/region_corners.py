@@ -24,10 +24,11 @@ from hybrid.types import read_mask
 def corner_legs(region: np.ndarray) -> list[tuple[int, int]]:
     """(along the row, along the column) outside pixels from each corner: top-left,
     top-right, bottom-left, bottom-right."""
-    legs = []
-    for flipped in (region, region[:, ::-1], region[::-1], region[::-1, ::-1]):
-        legs.append((int(np.argmax(flipped[0])), int(np.argmax(flipped[:, 0]))))
-    return legs
+    def run(edge: np.ndarray) -> int:  # outside pixels before the first inside one
+        return int(np.argmax(edge)) if edge.any() else len(edge)
+
+    return [(run(flipped[0]), run(flipped[:, 0]))
+            for flipped in (region, region[:, ::-1], region[::-1], region[::-1, ::-1])]
 
 
 def main() -> None:

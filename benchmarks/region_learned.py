@@ -6,9 +6,10 @@ those of the same procedures without it (the same seeds: inside the region the f
 identical). For each variant the learned stage (and the report) of `c2d2 run` is redone in a
 scratch folder that links the octagon run's files but takes the named ones from the full
 run's folder, or, for "no region", an all-white region.png (the coverage network then reads
-the depth network's values in the corners instead of the constant it is given outside the
-region). Printed per variant: the segment MAE and bias of the learned coverage against the
-octagon procedures' truth, and against the full run's learned values.
+the depth network's values in the corners instead of its fill of them from inside the region,
+a constant before 2026-11-30's fifty-fifth session: docs/coverage.md, "The image region").
+Printed per variant: the segment MAE and bias of the learned coverage against the octagon
+procedures' truth, and against the full run's learned values.
 
     python benchmarks/region_learned.py --octagon data/eval-octagon-h2 \
         --full data/eval-s54-final-h2 --data data/heldout2-octagon \
@@ -19,7 +20,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import shutil
 import tempfile
 from pathlib import Path
 
@@ -52,7 +52,6 @@ def learned_values(octagon: Path, full: Path, source: Path, taken: tuple[str, ..
             W.write_png(work / W.REGION, np.full(shape, 255, np.uint8))
         run_video(source, work, models=models, progress=False, echo=lambda _: None)
         record = json.loads((work / W.LEARNED).read_text())
-        shutil.rmtree(work)
     return [s["coverage"] for s in record["segments"]]
 
 

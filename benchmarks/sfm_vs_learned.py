@@ -3,7 +3,7 @@
 For each procedure under --data, on its first --frames frames at the fast preset's 128x160:
 
 - SfM: pycolmap on every --step-th frame (a wider baseline per pair), one shared
-  SIMPLE_PINHOLE camera, no mask (for procedures simulated without --octagon).
+  SIMPLE_PINHOLE camera, the image region as its mask.
 - Learned: the shipped depth checkpoint on all consecutive frames (as it was trained); its
   chained poses are taken at the same frames as SfM's; K is the median over frame pairs.
 
@@ -66,7 +66,7 @@ def compare(path: Path, model, frames: int, step: int) -> dict:
     start = time.perf_counter()
     with tempfile.TemporaryDirectory() as work:
         try:
-            sfm = run_sfm([seq.frame(i) for i in picks], None, Path(work), name=path.name)
+            sfm = run_sfm([seq.frame(i) for i in picks], seq.region, Path(work), name=path.name)
         except InputError:  # no model at all
             sfm = None
     sfm_s = time.perf_counter() - start

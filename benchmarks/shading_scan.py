@@ -1,6 +1,9 @@
 """How sharply the inverse-square shading prior (learned.shading) tells the true depth's shape
 and the true focal length apart, on simulated procedures.
 
+Whole-image procedures only: it feeds their frames to the networks as they are, where c2d2
+fills the black corners of ones simulated with `--octagon` (FrameSequence.network_frame).
+
 For frames every `--every` frames, the prior with the true depth and K, with the depth's shape
 spoiled (gt^p, compressed or stretched about the frame's median, so only the shape changes), and
 with the focal length scaled; optionally also at a depth model's prediction, with the true and

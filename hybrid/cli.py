@@ -16,6 +16,10 @@ from hybrid import workdir as W
 from hybrid.types import InputError
 
 if TYPE_CHECKING:
+    from collections.abc import Iterator
+
+    import numpy as np
+
     from fusion.self_calibration import SelfCalibration
     from hybrid.pipeline import RunConfig
     from learned.frames import FrameSequence
@@ -160,7 +164,7 @@ def coverage(
     result = compute_coverage(SurfaceMesh.load(mesh), Lumen(_load_npy(lumen), name=str(lumen)),
                               _load_npy(poses), Camera.load(camera), segment_frames,
                               progress=out is not None, poses_name=str(poses),
-                              region=_read_mask(region))
+                              region=_read_mask(region, "image region"))
     if out is None:
         typer.echo(json.dumps(result.to_json(), indent=1))
     else:
@@ -336,10 +340,10 @@ def _yes(value) -> str:
     return "n/a" if value is None else ("yes" if value else "no")
 
 
-def _read_mask(mask: Path | None):
+def _read_mask(mask: Path | None, what: str = "mask"):
     from hybrid.types import read_mask
 
-    return None if mask is None else read_mask(mask)
+    return None if mask is None else read_mask(mask, what)
 
 
 def _print_warnings(warnings: list[str]) -> None:
@@ -718,12 +722,11 @@ def adapt(
     models = Models.load(config, pick_device(device))
     T, stride = models.coverage.config.segment_frames, models.coverage.config.segment_stride
 
-    def features(paths: list[Path], work: Path, config: RunConfig) -> list:
-        resampled = []
+    def features(paths: list[Path], work: Path, config: RunConfig) -> Iterator[np.ndarray]:
+        """Each video's resampled per-frame features, computed when CORAL asks for them (and
+        dropped once it has embedded their windows: one video's are held at a time)."""
         for k, path in enumerate(expand_inputs(paths)):
-            per_frame, frames = video_features(path, work / str(k), config, models)
-            resampled.append(resample_features(per_frame, frames, T))
-        return resampled
+            yield resample_features(*video_features(path, work / str(k), config, models), T)
 
     with tempfile.TemporaryDirectory() as work:
         if source:  # simulated withdrawals, whatever the target videos are

@@ -57,7 +57,13 @@ from learned.coverage_nets import (
     relative_scale,
     resample_features,
 )
-from learned.frames import FrameSequence, check_fps, image_files, is_procedure
+from learned.frames import (
+    NETWORK_INPUT,
+    FrameSequence,
+    check_fps,
+    image_files,
+    is_procedure,
+)
 from learned.infer import aggregate_intrinsics, infer_sequence
 from learned.model import DepthModel, load_depth_model
 from learned.travel import chain_relative, no_travel, travel_features
@@ -615,7 +621,7 @@ def _prepare(out: Path, config: RunConfig, source: Path, models: Models,
     identity = _source_identity(source)
     resolved = {"config": recorded_config(config), "source": identity,
                 "region": _region_tag(region), "checkpoints": models.tags,
-                "c2d2_version": __version__}
+                "network_input": NETWORK_INPUT, "c2d2_version": __version__}
     if saved.is_file():
         previous = json.loads(saved.read_text())
         before = previous.get("source", {}).get("path")
@@ -643,6 +649,12 @@ def _prepare(out: Path, config: RunConfig, source: Path, models: Models,
             raise InputError(f"{out} holds a run made with another configuration (it differs "
                              f"in {_differing(before_config, resolved['config'])}); use another "
                              f"--out or delete it to start again")
+        if (previous.get("network_input") != NETWORK_INPUT and (out / W.REGION).is_file()
+                and not read_region(out).all()):
+            raise InputError(f"{out} holds a run by an earlier c2d2 whose networks read the "
+                             f"border around its image region black (they now read it "
+                             f"{NETWORK_INPUT}); use another --out or delete it to start "
+                             f"again")
         if "checkpoints" not in previous:
             raise InputError(f"{out} holds a run by an earlier c2d2 that did not record its "
                              f"model files, so it cannot be resumed safely; use another --out "

@@ -10,7 +10,6 @@ import os
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
-import cv2
 import numpy as np
 
 #: Image size (height, width) of each preset.
@@ -126,6 +125,8 @@ def check_depth(depth: np.ndarray, shape: tuple[int, int] | None, what: str) -> 
 def read_mask(path: Path, what: str = "mask") -> np.ndarray:
     """(H, W) bool mask from an image file (grey above 127 is inside), or an InputError naming
     `what`."""
+    import cv2  # not for every user of these types
+
     image = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
     if image is None:
         raise InputError(f"cannot read {what} image {path}")

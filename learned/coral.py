@@ -15,6 +15,8 @@ statistics can be taken from held-out synthetic videos instead of the training w
 
 from __future__ import annotations
 
+from collections.abc import Iterable
+
 import numpy as np
 import torch
 
@@ -58,28 +60,30 @@ def coral_transform(source_mean: np.ndarray, source_cov: np.ndarray, target: np.
     return A, source_mean - A @ target.mean(0)
 
 
-def window_embeddings(model: CoverageModel, features: list[np.ndarray], stride: int,
+def window_embeddings(model: CoverageModel, features: Iterable[np.ndarray], stride: int,
                       role: str = "target") -> np.ndarray:
     """The pooled layer (n, len(MIRRORS), C) of the n windows every `stride` frames of each
     video's features, in each mirror view, from more segments' worth of video than C (see
-    the module)."""
+    the module). `features` may be a generator: each video's are dropped once embedded."""
     T, dims = model.config.segment_frames, model.segment.fc.in_features
-    starts = [list(range(0, len(f) - T + 1, stride)) for f in features]
-    if not any(starts):
-        longest = max((len(f) for f in features), default=0)
+    embedded, segments, longest = [], 0, 0
+    for video in features:
+        segments, longest = segments + len(video) // T, max(longest, len(video))
+        if starts := list(range(0, len(video) - T + 1, stride)):
+            embedded.append(model.segment_embeddings(video, starts).double().cpu().numpy())
+    if not embedded:
         raise InputError(f"CORAL needs {role} videos of at least {T} frames (one segment); "
                          f"the longest has {longest}")
-    segments = sum(len(f) // T for f in features)
     if segments <= dims:
         raise InputError(f"CORAL needs more {role} video than {dims} segments of {T} frames "
                          f"(the dimensions it aligns; overlapping windows and mirror views "
                          f"are not independent samples), got {segments}; give more or longer "
                          f"videos")
-    return np.concatenate([model.segment_embeddings(f, ss).double().cpu().numpy()
-                           for f, ss in zip(features, starts, strict=True) if ss])
+    return np.concatenate(embedded)
 
 
-def set_source(model: CoverageModel, source_features: list[np.ndarray], stride: int) -> int:
+def set_source(model: CoverageModel, source_features: Iterable[np.ndarray], stride: int
+               ) -> int:
     """Replace CORAL's source statistics (by default the training windows') by those of
     windows of synthetic videos the model was not trained on; returns their number."""
     embedded = window_embeddings(model, source_features, stride, role="source")
@@ -90,7 +94,7 @@ def set_source(model: CoverageModel, source_features: list[np.ndarray], stride: 
     return len(embedded)
 
 
-def adapt(model: CoverageModel, target_features: list[np.ndarray], stride: int) -> int:
+def adapt(model: CoverageModel, target_features: Iterable[np.ndarray], stride: int) -> int:
     """Fit the model's CORAL transform on windows of unlabelled videos' per-frame features
     (every mirror view of each window a sample).
 

@@ -75,6 +75,11 @@ class Crop:
                       full.cx + self.x0, full.cy + self.y0, camera.fps)
 
 
+NETWORK_INPUT = "border filled from the nearest pixels inside"
+"""How the networks read a frame's border (`FrameSequence.network_frame`), as work folders
+record it: one made while they read it black is not resumed on a bordered video."""
+
+
 def nearest_inside(region: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(rows, columns), each (H, W): for every pixel the nearest pixel of the (H, W) bool
     region (itself inside it), so that image[rows, columns] fills the border from within."""

@@ -513,6 +513,10 @@ def test_adapt_needs_a_video_of_one_segment_and_more_segments_than_dimensions():
     video = rng.normal(size=(20 * (dims + 1), 4, SMALL.feature_size)).astype(np.float32)
     assert adapt(model, [video], stride=5) == (len(video) - 20) // 5 + 1
     assert adapt(model, [video[:60], video[60:]], stride=5) == 9 + 5  # 3 and 2 segments
+    fitted = model.segment.coral_matrix.clone()
+    # as `c2d2 adapt` gives them: computed one video at a time, with one too short for a window
+    assert adapt(model, (v for v in (video[:60], video[:10], video[60:])), stride=5) == 9 + 5
+    torch.testing.assert_close(model.segment.coral_matrix, fitted, rtol=0, atol=0)
     with pytest.raises(InputError, match=f"more target video than {dims} segments of 20 frames"
                                          f".* got {dims}"):
         adapt(model, [video[:-1]], stride=5)

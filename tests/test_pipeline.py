@@ -689,6 +689,29 @@ def test_cli_refuses_a_work_folder_of_another_video(pipeline_run, frames, tmp_pa
     assert snapshot(work) == kept
 
 
+def test_a_bordered_run_whose_networks_read_the_border_black_is_not_resumed(pipeline_run,
+                                                                           procedure, tmp_path):
+    """A work folder made before the networks read the border filled from inside (config.json
+    without network_input): resumed on a whole image, where nothing differs; refused, with
+    nothing touched, where its region has a border (its depth came from black corners)."""
+    out, _ = pipeline_run
+    work = tmp_path / "work"
+    shutil.copytree(out, work)
+    config = json.loads((work / W.CONFIG).read_text())
+    assert config.pop("network_input") == "border filled from the nearest pixels inside"
+    (work / W.CONFIG).write_text(json.dumps(config))
+    resumed = runner.invoke(app, ["run", str(procedure.path), "--out", str(work)])
+    assert resumed.exit_code == 0, resumed.output
+    region = cv2.imread(str(work / W.REGION), cv2.IMREAD_GRAYSCALE)
+    region[:3, :3] = 0
+    cv2.imwrite(str(work / W.REGION), region)
+    kept = snapshot(work)
+    message = assert_input_error(runner.invoke(app, ["run", str(procedure.path), "--out",
+                                                     str(work)]), str(work))
+    assert "networks read the border around its image region black" in message
+    assert snapshot(work) == kept
+
+
 def test_cli_refuses_a_work_folder_made_with_another_image_region(pipeline_run, procedure,
                                                                     tmp_path):
     """A run whose region was detected is not resumed with a --mask, nor the reverse; a folder
@@ -801,7 +824,7 @@ def test_a_flat_image_inside_a_circular_border_reads_as_blurred(shape, given, tm
 
 def test_a_frame_rate_or_mask_for_a_simulated_procedure_is_refused_before_any_file(
         procedure, tmp_path):
-    """A simulated procedure has its own frame rate and no border (they were taken silently);
+    """A simulated procedure has its own frame rate and image region (they were taken silently);
     `run` refuses them before its work folder records them, so that a run without them may
     follow in the same folder."""
     from hybrid.ingest import ingest

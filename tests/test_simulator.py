@@ -92,12 +92,12 @@ def test_a_complete_procedure_of_other_settings_is_refused(tmp_path, simulated, 
     assert (copy / "coverage.json").read_text() == kept
 
 
-def test_a_procedure_simulated_before_camera_seed_existed_resumes(tmp_path, simulated,
-                                                                 sim_config):
+def test_a_procedure_simulated_before_camera_seed_and_corner_cut_existed_resumes(
+        tmp_path, simulated, sim_config):
     copy = tmp_path / simulated.name
     shutil.copytree(simulated, copy)
     meta = json.loads((copy / "meta.json").read_text())
-    del meta["config"]["camera_seed"]
+    del meta["config"]["camera_seed"], meta["config"]["corner_cut"]  # nor corner_cut
     (copy / "meta.json").write_text(json.dumps(meta))
     marker = '{"marker": true}\n'
     (copy / "coverage.json").write_text(marker)
@@ -254,6 +254,12 @@ def test_camera_seed_takes_that_seeds_camera_and_nothing_else(sim_config):
         np.testing.assert_array_equal(shared.poses, own.poses)
         np.testing.assert_array_equal(shared.colon.vertices, own.colon.vertices)
         np.testing.assert_array_equal(shared.renderer.texture, own.renderer.texture)
+    # the endoscope's image region goes with its camera
+    cut = (0.15, 0.25)
+    regions = [draw_scene(replace(config, corner_cut=cut), seed, 0).region
+               for config, seed in ((replace(dusk, camera_seed=1), 2), (pink, 1), (dusk, 2))]
+    np.testing.assert_array_equal(regions[0], regions[1])
+    assert not np.array_equal(regions[0], regions[2])
 
 
 def test_rendered_depth_of_a_straight_tube_is_analytic():

@@ -99,9 +99,9 @@ class SimConfig:
 
 
 OCTAGON_CUT = (0.15, 0.25)
-"""`c2d2 simulate --octagon`'s corner_cut: 4-10% of the image outside, as the real footage in
-../shared/data, whose corner cuts are 0.16-0.25 of its shorter side with 4-8% outside
-(benchmarks/region_corners.py, docs/simulator.md)."""
+"""`c2d2 simulate --octagon`'s corner_cut: 4-10% of the image outside, about as in the real
+footage in ../shared/data, whose corner cuts are mostly 0.14-0.25 of its shorter side with
+3.7-8.2% outside (benchmarks/region_corners.py, docs/simulator.md)."""
 
 
 def procedure_name(index: int) -> str:
@@ -129,10 +129,12 @@ def octagon_region(height: int, width: int, cut_px: float) -> np.ndarray:
 
 def draw_region(config: SimConfig, camera: Camera, seed: int, index: int) -> np.ndarray | None:
     """Procedure `index`'s image region, None for the whole image. Drawn from a generator of
-    its own, so a procedure with a region is the one without, its corners blacked out."""
+    its own, so a procedure with a region is the one without, its corners blacked out; with
+    a camera_seed, that seed's (the region belongs to the endoscope, as the camera does)."""
     if config.corner_cut is None:
         return None
-    fraction = np.random.default_rng([seed, index, 1]).uniform(*config.corner_cut)
+    endoscope = seed if config.camera_seed is None else config.camera_seed
+    fraction = np.random.default_rng([endoscope, index, 1]).uniform(*config.corner_cut)
     return octagon_region(camera.height, camera.width,
                           fraction * min(camera.height, camera.width))
 
