@@ -36,7 +36,7 @@ def main() -> None:
     parser.add_argument("regions", type=Path, nargs="+")
     args = parser.parse_args()
     for path in args.regions:
-        region = read_mask(path, "image region")
+        region = read_mask(path, "region")
         side = min(region.shape)
         legs = corner_legs(region)
         fractions = " ".join(f"{a / side:.2f}/{b / side:.2f}" for a, b in legs)

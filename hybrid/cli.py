@@ -164,7 +164,7 @@ def coverage(
     result = compute_coverage(SurfaceMesh.load(mesh), Lumen(_load_npy(lumen), name=str(lumen)),
                               _load_npy(poses), Camera.load(camera), segment_frames,
                               progress=out is not None, poses_name=str(poses),
-                              region=_read_mask(region, "image region"))
+                              region=_read_mask(region, "region"))
     if out is None:
         typer.echo(json.dumps(result.to_json(), indent=1))
     else:

@@ -103,11 +103,14 @@ class Procedure:
         shape = (self.camera.height, self.camera.width)
         if not (self.path / REGION_FILE).is_file():
             return np.ones(shape, dtype=bool)
-        region = read_mask(self.path / REGION_FILE, "image region")
-        if region.shape != shape or not region.any():
-            raise InputError(f"{self.path / REGION_FILE}: expected a non-empty mask of the "
-                             f"camera's size {shape}, got {region.shape}; simulate the "
-                             f"procedure again with `c2d2 simulate`")
+        region = read_mask(self.path / REGION_FILE, "region")
+        # reaching every edge, the frames are not cropped, so camera.json stays their camera
+        if region.shape != shape or not all(edge.any() for edge in (
+                region[0], region[-1], region[:, 0], region[:, -1])):
+            raise InputError(f"{self.path / REGION_FILE}: expected a mask of the camera's size "
+                             f"{shape} reaching every edge of the image, got a {region.shape} "
+                             f"mask that does not fit; simulate the procedure again with "
+                             f"`c2d2 simulate`")
         return region
 
     @cached_property

@@ -159,7 +159,7 @@ class Models:
 
 def read_region(out: Path) -> np.ndarray:
     """(H, W) bool: the image region a work folder's ingest stage wrote."""
-    return read_mask(out / W.REGION, "image region")
+    return read_mask(out / W.REGION, "region")
 
 
 def read_network_K(out: Path, height: int, width: int) -> np.ndarray:

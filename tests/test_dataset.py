@@ -92,6 +92,26 @@ def test_a_damaged_file_of_a_procedure_is_named(simulated, tmp_path, name, read)
         read(Procedure.open(copy))
 
 
+def test_a_region_that_would_crop_the_frames_or_is_damaged_is_refused(simulated, tmp_path):
+    """region.png must be the camera's size and reach every image edge (the frames are then
+    not cropped, so camera.json stays their camera); without it, the whole image."""
+    import cv2
+
+    copy = tmp_path / "proc"
+    shutil.copytree(simulated, copy)
+    camera = Procedure.open(copy).camera
+    assert Procedure.open(copy).region.all()
+    y, x = np.mgrid[:camera.height, :camera.width]
+    disc = np.hypot(x - camera.width / 2, y - camera.height / 2) < camera.height / 3
+    for mask in (disc, np.ones((camera.height, camera.width - 1), bool)):
+        cv2.imwrite(str(copy / "region.png"), mask.astype(np.uint8) * 255)
+        with pytest.raises(InputError, match="reaching every edge of the image"):
+            _ = Procedure.open(copy).region
+    (copy / "region.png").write_bytes(b"not an image")
+    with pytest.raises(InputError, match="cannot read region image"):
+        _ = Procedure.open(copy).region
+
+
 def test_a_procedure_still_being_simulated_is_no_training_input(simulated, tmp_path):
     """A killed `simulate` leaves proc_NNNN.partial, camera.json and rgb/ in it."""
     from learned.train import expand_inputs
