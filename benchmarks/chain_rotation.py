@@ -1,7 +1,8 @@
 """The motion net's rotation over the pair gap: estimated directly, or chained from small steps.
 
-Whole-image procedures only: it feeds their frames to the networks as they are, where c2d2
-fills the black corners of ones simulated with `--octagon` (FrameSequence.network_frame).
+Whole-image procedures only (others are refused): it feeds their frames to the networks as
+they are, where c2d2 fills the black corners of ones simulated with `--octagon`
+(FrameSequence.network_frame).
 
 For simulated procedures, every `--every` frames t: the rotation from frame t - gap to t (gap:
 the model's pair_gap_s) as the motion net estimates it from that pair, and as the composition
@@ -54,7 +55,7 @@ def main() -> None:
     rows: dict[str, list[np.ndarray]] = {"true": [], "direct": []}
     focal = []
     with torch.no_grad():
-        for proc in (p for d in args.data for p in list_procedures(d)):
+        for proc in (p for d in args.data for p in list_procedures(d, whole_images=True)):
             gap = max(1, round(proc.camera.fps * model.config.pair_gap_s))
             images = torch.stack([to_tensor(proc.rgb(i)) for i in range(proc.num_frames)])
             starts = np.arange(0, proc.num_frames - gap, args.every)

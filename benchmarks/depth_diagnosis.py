@@ -1,7 +1,8 @@
 """Where a trained depth model sits against the truth, and how sharply the loss separates them.
 
-Whole-image procedures only: it feeds their frames to the networks as they are, where c2d2
-fills the black corners of ones simulated with `--octagon` (FrameSequence.network_frame).
+Whole-image procedures only (others are refused): it feeds their frames to the networks as
+they are, where c2d2 fills the black corners of ones simulated with `--octagon`
+(FrameSequence.network_frame).
 
 On simulated procedures, for triplets every `--every` frames:
   1. The training loss (learned.losses.view_synthesis_loss, the model's own config) at the
@@ -131,7 +132,7 @@ def main() -> None:
     # The view-synthesis loss only (a chain-trained model's loss would need chain targets),
     # as the ordinary batches see it (photo_blur_on may keep photo_blur to the map batches).
     model.config = replace(model.config, w_chain=0.0).ordinary_view()
-    procs = [p for d in args.data for p in list_procedures(d)]
+    procs = [p for d in args.data for p in list_procedures(d, whole_images=True)]
     truth, predicted = [], []
     for _, frames, depths, motions, K in triplets(procs, model.config.pair_gap_s, args.every):
         truth.append(loss_of(frames, depths, motions, K, model.config)["total"])

@@ -1,7 +1,8 @@
 """Training loss against the focal length, with true depth and true motion.
 
-Whole-image procedures only: it feeds their frames to the networks as they are, where c2d2
-fills the black corners of ones simulated with `--octagon` (FrameSequence.network_frame).
+Whole-image procedures only (others are refused): it feeds their frames to the networks as
+they are, where c2d2 fills the black corners of ones simulated with `--octagon`
+(FrameSequence.network_frame).
 
 Runs the training loss (`learned.losses.view_synthesis_loss`, default config) on triplets of
 simulated procedures with their true depth and poses, scaling the true K's focal lengths. If the
@@ -35,7 +36,7 @@ def main() -> None:
     args = parser.parse_args()
     config = DepthConfig()
     losses: dict[float, list[float]] = {s: [] for s in args.scales}
-    for proc in list_procedures(args.data):
+    for proc in list_procedures(args.data, whole_images=True):
         gap = max(1, round(proc.camera.fps * config.pair_gap_s))
         K_true = torch.tensor(proc.camera.K, dtype=torch.float32)[None]
         for t in range(gap, proc.num_frames - gap, args.every):

@@ -1,7 +1,8 @@
 """How sharply the photometric loss singles out the truth on simulated procedures.
 
-Whole-image procedures only: it feeds their frames to the networks as they are, where c2d2
-fills the black corners of ones simulated with `--octagon` (FrameSequence.network_frame).
+Whole-image procedures only (others are refused): it feeds their frames to the networks as
+they are, where c2d2 fills the black corners of ones simulated with `--octagon`
+(FrameSequence.network_frame).
 
 With the true depth, pose and K, warp a source frame `gap` frames away into the target and
 measure the photometric error (L1 and 1-SSIM at several windows) over valid, non-specular
@@ -44,7 +45,7 @@ def main() -> None:
     args = parser.parse_args()
     for gap in args.gaps:
         table: dict[tuple[str, str], list[float]] = {}
-        for proc in list_procedures(args.data):
+        for proc in list_procedures(args.data, whole_images=True):
             K = torch.tensor(proc.camera.K, dtype=torch.float32)[None]
             short = K.clone()
             short[:, 0, 0] *= 0.8

@@ -1,7 +1,8 @@
 """Learn motion and intrinsics alone, with the true depth given: does K converge?
 
-Whole-image procedures only: it feeds their frames to the networks as they are, where c2d2
-fills the black corners of ones simulated with `--octagon` (FrameSequence.network_frame).
+Whole-image procedures only (others are refused): it feeds their frames to the networks as
+they are, where c2d2 fills the black corners of ones simulated with `--octagon`
+(FrameSequence.network_frame).
 
 Trains a fresh MotionNet (fast preset) with the training loss on simulated procedures whose
 true depth replaces the depth network, and prints the focal length it predicts on held-out
@@ -78,8 +79,8 @@ def main() -> None:
     parser.add_argument("--weighting", choices=["uniform", "rotation"], default="uniform")
     args = parser.parse_args()
     config = DepthConfig()
-    procs = [p for d in args.data for p in list_procedures(d)]
-    val = list_procedures(args.val)
+    procs = [p for d in args.data for p in list_procedures(d, whole_images=True)]
+    val = list_procedures(args.val, whole_images=True)
     gap = max(1, round(procs[0].camera.fps * config.pair_gap_s))
     torch.manual_seed(args.seed)
     model = DepthModel(config)

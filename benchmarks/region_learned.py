@@ -29,10 +29,11 @@ from hybrid import workdir as W
 from hybrid.coverage import pair_key
 from hybrid.dataset import Procedure
 from hybrid.pipeline import Models, RunConfig, run_video
+from learned.frames import NETWORK_INPUT
 
 VARIANTS = {"as run": (), "no region": ("region",), "full depth": (W.DEPTH,),
             "full travel": (W.RELATIVE,), "full depth and travel": (W.DEPTH, W.RELATIVE)}
-REDONE = {W.LEARNED, W.COVERAGE_JSON, W.COVERAGE_CSV, W.REPORT}
+REDONE = {W.LEARNED, W.COVERAGE_JSON, W.COVERAGE_CSV, W.REPORT, W.CONFIG}
 
 
 def learned_values(octagon: Path, full: Path, source: Path, taken: tuple[str, ...],
@@ -46,6 +47,9 @@ def learned_values(octagon: Path, full: Path, source: Path, taken: tuple[str, ..
                 continue
             given = full / item.name if item.name in taken else item
             (work / item.name).symlink_to(given.resolve())
+        # today's learned stage on these inputs, whatever the run's networks read
+        config = json.loads((octagon / W.CONFIG).read_text())
+        W.write_json(work / W.CONFIG, config | {"network_input": NETWORK_INPUT})
         if "region" in taken:
             (work / W.REGION).unlink()
             shape = np.load(work / W.DEPTH, mmap_mode="r").shape[1:]

@@ -1,8 +1,9 @@
 """How sharply the inverse-square shading prior (learned.shading) tells the true depth's shape
 and the true focal length apart, on simulated procedures.
 
-Whole-image procedures only: it feeds their frames to the networks as they are, where c2d2
-fills the black corners of ones simulated with `--octagon` (FrameSequence.network_frame).
+Whole-image procedures only (others are refused): it feeds their frames to the networks as
+they are, where c2d2 fills the black corners of ones simulated with `--octagon`
+(FrameSequence.network_frame).
 
 For frames every `--every` frames, the prior with the true depth and K, with the depth's shape
 spoiled (gt^p, compressed or stretched about the frame's median, so only the shape changes), and
@@ -64,7 +65,7 @@ def main() -> None:
     model = load_depth_model(args.model) if args.model else None
     errors = []
     rows: dict[str, list[float]] = {}
-    for proc in [p for d in args.data for p in list_procedures(d)]:
+    for proc in [p for d in args.data for p in list_procedures(d, whole_images=True)]:
         ts = range(0, proc.num_frames, args.every)
         images = torch.stack([to_tensor(proc.rgb(t)) for t in ts])
         truth = torch.stack([torch.from_numpy(proc.depth(t))[None] for t in ts])

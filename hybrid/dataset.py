@@ -104,12 +104,14 @@ class Procedure:
         if not (self.path / REGION_FILE).is_file():
             return np.ones(shape, dtype=bool)
         region = read_mask(self.path / REGION_FILE, "region")
-        # reaching every edge, the frames are not cropped, so camera.json stays their camera
-        if region.shape != shape or not all(edge.any() for edge in (
-                region[0], region[-1], region[:, 0], region[:, -1])):
+        if region.shape != shape:
             raise InputError(f"{self.path / REGION_FILE}: expected a mask of the camera's size "
-                             f"{shape} reaching every edge of the image, got a {region.shape} "
-                             f"mask that does not fit; simulate the procedure again with "
+                             f"{shape}, got {region.shape}; simulate the procedure again with "
+                             f"`c2d2 simulate`")
+        # reaching every edge, the frames are not cropped, so camera.json stays their camera
+        if not all(edge.any() for edge in (region[0], region[-1], region[:, 0], region[:, -1])):
+            raise InputError(f"{self.path / REGION_FILE}: the image region must reach every "
+                             f"edge of the image; simulate the procedure again with "
                              f"`c2d2 simulate`")
         return region
 
@@ -160,8 +162,10 @@ class Procedure:
         return read_depth(self.path / "depth" / frame_name(index))
 
 
-def list_procedures(root: Path) -> list[Procedure]:
-    """Every complete procedure folder directly under root, sorted by name."""
+def list_procedures(root: Path, whole_images: bool = False) -> list[Procedure]:
+    """Every complete procedure folder directly under root, sorted by name; with
+    whole_images, an error for one with an image region (`--octagon`), for tools that feed
+    its frames to the networks as they are, black corners and all."""
     root = Path(root)
     if not root.is_dir():
         raise InputError(f"dataset folder not found: {root}")
@@ -169,4 +173,7 @@ def list_procedures(root: Path) -> list[Procedure]:
              if p.is_dir() and all((p / f).is_file() for f in REQUIRED_FILES)]
     if not found:
         raise InputError(f"no simulated procedures under {root}; make some with `c2d2 simulate`")
+    if whole_images and (bordered := [p.path.name for p in found if not p.region.all()]):
+        raise InputError(f"{root}: {', '.join(bordered[:5])} have an image region; this tool "
+                         f"reads whole images only (simulate without --octagon)")
     return found

@@ -649,12 +649,6 @@ def _prepare(out: Path, config: RunConfig, source: Path, models: Models,
             raise InputError(f"{out} holds a run made with another configuration (it differs "
                              f"in {_differing(before_config, resolved['config'])}); use another "
                              f"--out or delete it to start again")
-        if (previous.get("network_input") != NETWORK_INPUT and (out / W.REGION).is_file()
-                and not read_region(out).all()):
-            raise InputError(f"{out} holds a run by an earlier c2d2 whose networks read the "
-                             f"border around its image region black (they now read it "
-                             f"{NETWORK_INPUT}); use another --out or delete it to start "
-                             f"again")
         if "checkpoints" not in previous:
             raise InputError(f"{out} holds a run by an earlier c2d2 that did not record its "
                              f"model files, so it cannot be resumed safely; use another --out "
@@ -663,5 +657,13 @@ def _prepare(out: Path, config: RunConfig, source: Path, models: Models,
             raise InputError(f"{out} holds a run made with other model checkpoints (SHA-256 "
                              f"prefixes {previous['checkpoints']}, now {models.tags}); use "
                              f"another --out or delete it to start again")
+        if previous.get("network_input") != NETWORK_INPUT:
+            if ((out / W.DEPTH).is_file() and (out / W.REGION).is_file()
+                    and not read_region(out).all()):
+                raise InputError(f"{out} holds a run by an earlier c2d2 whose networks read "
+                                 f"the border around its image region black (now: "
+                                 f"{NETWORK_INPUT}); use another --out or delete it to start "
+                                 f"again")
+            W.write_json(saved, previous | {"network_input": NETWORK_INPUT})  # nothing differs
     elif source.exists():
         W.write_json(saved, resolved)

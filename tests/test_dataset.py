@@ -9,7 +9,7 @@ import pytest
 
 from hybrid.coverage import Lumen, compute_coverage
 from hybrid.dataset import DEPTH_UNIT_CM, Procedure, list_procedures, read_depth, write_depth
-from hybrid.sim.simulate import draw_scene
+from hybrid.sim.simulate import draw_scene, octagon_region
 from hybrid.types import InputError
 
 
@@ -103,13 +103,20 @@ def test_a_region_that_would_crop_the_frames_or_is_damaged_is_refused(simulated,
     assert Procedure.open(copy).region.all()
     y, x = np.mgrid[:camera.height, :camera.width]
     disc = np.hypot(x - camera.width / 2, y - camera.height / 2) < camera.height / 3
-    for mask in (disc, np.ones((camera.height, camera.width - 1), bool)):
+    for mask, words in ((disc, "must reach every edge of the image"),
+                        (np.ones((camera.height, camera.width - 1), bool), "camera's size")):
         cv2.imwrite(str(copy / "region.png"), mask.astype(np.uint8) * 255)
-        with pytest.raises(InputError, match="reaching every edge of the image"):
+        with pytest.raises(InputError, match=words):
             _ = Procedure.open(copy).region
     (copy / "region.png").write_bytes(b"not an image")
     with pytest.raises(InputError, match="cannot read region image"):
         _ = Procedure.open(copy).region
+    octagon = octagon_region(camera.height, camera.width, 20)
+    cv2.imwrite(str(copy / "region.png"), octagon.astype(np.uint8) * 255)
+    np.testing.assert_array_equal(Procedure.open(copy).region, octagon)
+    assert list_procedures(tmp_path) == [Procedure(copy)]
+    with pytest.raises(InputError, match="proc have an image region; this tool reads whole"):
+        list_procedures(tmp_path, whole_images=True)
 
 
 def test_a_procedure_still_being_simulated_is_no_training_input(simulated, tmp_path):

@@ -692,24 +692,35 @@ def test_cli_refuses_a_work_folder_of_another_video(pipeline_run, frames, tmp_pa
 def test_a_bordered_run_whose_networks_read_the_border_black_is_not_resumed(pipeline_run,
                                                                            procedure, tmp_path):
     """A work folder made before the networks read the border filled from inside (config.json
-    without network_input): resumed on a whole image, where nothing differs; refused, with
-    nothing touched, where its region has a border (its depth came from black corners)."""
+    without network_input): refused, with nothing touched, where its region has a border and
+    its depth was computed (from black corners); else resumed, where nothing differs, and
+    then recorded as made with the fill (a whole image; a depth stage still to run)."""
     out, _ = pipeline_run
     work = tmp_path / "work"
     shutil.copytree(out, work)
     config = json.loads((work / W.CONFIG).read_text())
     assert config.pop("network_input") == "border filled from the nearest pixels inside"
-    (work / W.CONFIG).write_text(json.dumps(config))
-    resumed = runner.invoke(app, ["run", str(procedure.path), "--out", str(work)])
-    assert resumed.exit_code == 0, resumed.output
     region = cv2.imread(str(work / W.REGION), cv2.IMREAD_GRAYSCALE)
     region[:3, :3] = 0
     cv2.imwrite(str(work / W.REGION), region)
+    (work / W.CONFIG).write_text(json.dumps(config))
     kept = snapshot(work)
     message = assert_input_error(runner.invoke(app, ["run", str(procedure.path), "--out",
                                                      str(work)]), str(work))
-    assert "networks read the border around its image region black" in message
+    assert "networks read the border around its image region black (now: border filled" \
+        in message
     assert snapshot(work) == kept
+
+    def resumed_and_recorded() -> bool:
+        (work / W.CONFIG).write_text(json.dumps(config))
+        result = runner.invoke(app, ["run", str(procedure.path), "--out", str(work)])
+        assert result.exit_code == 0, result.output
+        return "network_input" in json.loads((work / W.CONFIG).read_text())
+
+    (work / W.DEPTH).unlink()  # the depth stage still to run: it will fill the border
+    assert resumed_and_recorded()
+    shutil.copyfile(out / W.REGION, work / W.REGION)  # a whole image: nothing differs
+    assert resumed_and_recorded()
 
 
 def test_cli_refuses_a_work_folder_made_with_another_image_region(pipeline_run, procedure,

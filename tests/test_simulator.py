@@ -97,7 +97,7 @@ def test_a_procedure_simulated_before_camera_seed_and_corner_cut_existed_resumes
     copy = tmp_path / simulated.name
     shutil.copytree(simulated, copy)
     meta = json.loads((copy / "meta.json").read_text())
-    del meta["config"]["camera_seed"], meta["config"]["corner_cut"]  # nor corner_cut
+    del meta["config"]["camera_seed"], meta["config"]["corner_cut"]
     (copy / "meta.json").write_text(json.dumps(meta))
     marker = '{"marker": true}\n'
     (copy / "coverage.json").write_text(marker)
