@@ -1,7 +1,9 @@
 """The learned coverage of the same footage in two sets of runs (e.g. with two coverage
 models; no ground truth): per group of runs, each set's mean, in how many segments the second
 reads higher, the per-segment difference (second minus first: median and largest absolute
-value, and its range), the correlation of the two and each set's deficient segments.
+value, and its range), the correlation of the two, in how many segments the 3-class label
+changes and each set's deficient segments; for real_runs.json, also each set's median focal
+length (fx, input pixels) and its largest change in one run.
 
 Reads the real_runs.json of benchmarks/real_runs.py (groups: the clip as a withdrawal, as an
 insertion, and the CVC-ClinicDB sequences pooled, over the runs both sets finished) or the
@@ -19,6 +21,8 @@ import json
 from pathlib import Path
 
 import numpy as np
+
+from learned.coverage_eval import three_class
 
 GROUPS = {"clip as a withdrawal": "clip-withdrawal", "clip as an insertion": "clip-insertion",
           "CVC-ClinicDB": "cvc_seq"}
@@ -53,8 +57,22 @@ def main() -> None:
         print(f"{group} ({len(names)} runs, {len(x)} segments): mean {x.mean():.3f} -> "
               f"{y.mean():.3f}; higher in {np.sum(d > 0)} of {len(d)}; |difference| median "
               f"{np.median(np.abs(d)):.3f}, largest {np.abs(d).max():.3f} (from {d.min():+.3f} "
-              f"to {d.max():+.3f}); correlation {np.corrcoef(x, y)[0, 1]:.2f}; deficient "
+              f"to {d.max():+.3f}); correlation {np.corrcoef(x, y)[0, 1]:.2f}; 3-class "
+              f"changes in {np.sum(three_class(x) != three_class(y))}; deficient "
               f"{sum(s['deficient'] for s in a)} -> {sum(s['deficient'] for s in b)}")
+        if fx := focal_lengths(args.first, args.second, names):
+            before, after = np.array(fx).T
+            print(f"  fx median {np.median(before):.1f} -> {np.median(after):.1f} px, largest "
+                  f"change {np.abs(after - before).max():.1f} px")
+
+
+def focal_lengths(first: Path, second: Path, names: list[str]) -> list[tuple[float, float]]:
+    """(before, after) fx of the named runs of two real_runs.json that both record it."""
+    if "segments" in json.loads(first.read_text()):  # a coverage.json: no intrinsics
+        return []
+    a, b = (json.loads(path.read_text()) for path in (first, second))
+    return [(a[n]["intrinsics"]["fx"], b[n]["intrinsics"]["fx"]) for n in names
+            if a[n].get("intrinsics") and b[n].get("intrinsics")]
 
 
 if __name__ == "__main__":

@@ -393,13 +393,13 @@ def _cross_sections(path: np.ndarray, surface: np.ndarray, tree: cKDTree, spacin
         sectors = np.unique(((angles + np.pi) / (np.pi / 6)).astype(int) % 12)
         if len(sectors) >= config.min_arc_bins:
             centre[i], radius[i] = p + cx * u + cy * v, r
-    good = np.flatnonzero(np.isfinite(radius))
+    ok = np.isfinite(radius)
+    good = np.flatnonzero(ok)
     if len(good) < 2:
         raise InputError(f"{name}: no usable cross-section of the lumen (too few surface "
                          f"points around the camera path, or only short arcs of the wall); "
                          f"check depth and poses")
     index = np.arange(good[0], good[-1] + 1)  # from the first to the last fitted station
-    ok = np.isfinite(radius)
     bridged = ok.copy()
     bridged[1:-1] |= ok[:-2] & ok[2:]
     on_wall = bridged[index]
