@@ -1,18 +1,20 @@
-"""Why the learned coverage reads lower through an image region: its stage redone with one
-input at a time taken from the run of the same procedure without the region.
+"""Why the learned coverage reads otherwise through an image region (or a resampled lens):
+its stage redone with one input at a time taken from the run of the same procedure filmed
+whole through a pinhole.
 
---octagon holds the `c2d2 eval` work folders of procedures simulated with `--octagon`, --full
+--runs holds the `c2d2 eval` work folders of procedures simulated with `--octagon` (or
+fisheye ones resampled to their pinhole twins by benchmarks/fisheye_to_pinhole.py), --twins
 those of the same procedures without it (the same seeds: inside the region the frames are
-identical). For each variant the learned stage (and the report) of `c2d2 run` is redone in a
-scratch folder that links the octagon run's files but takes the named ones from the full
-run's folder, or, for "no region", an all-white region.png (the coverage network then reads
-the depth network's values in the corners instead of its fill of them from inside the region,
-a constant before 2026-11-30's fifty-fifth session: docs/coverage.md, "The image region").
-Printed per variant: the segment MAE and bias of the learned coverage against the octagon
-procedures' truth, and against the full run's learned values.
+the same). For each variant the learned stage (and the report) of `c2d2 run` is redone in a
+scratch folder that links the run's files but takes the named ones from the twin's folder,
+or, for "no region", an all-white region.png (the coverage network then reads the depth
+network's values in the border instead of its fill of them from inside the region, a
+constant before 2026-11-30's fifty-fifth session: docs/coverage.md, "The image region").
+Printed per variant: the segment MAE and bias of the learned coverage against the run's
+procedures' truth, and against the twin run's learned values.
 
-    python benchmarks/region_learned.py --octagon data/eval-octagon-h2 \
-        --full data/eval-s54-final-h2 --data data/heldout2-octagon \
+    python benchmarks/region_learned.py --runs data/eval-octagon-h2 \
+        --twins data/eval-s54-final-h2 --data data/heldout2-octagon \
         --variants "no region" "full depth" "full travel"
 """
 
@@ -36,19 +38,19 @@ VARIANTS = {"as run": (), "no region": ("region",), "full depth": (W.DEPTH,),
 REDONE = {W.LEARNED, W.COVERAGE_JSON, W.COVERAGE_CSV, W.REPORT, W.CONFIG}
 
 
-def learned_values(octagon: Path, full: Path, source: Path, taken: tuple[str, ...],
+def learned_values(run: Path, twin: Path, source: Path, taken: tuple[str, ...],
                    models: Models) -> list[float]:
-    """The learned segment coverage of `source` with the files `taken` from the full run."""
+    """The learned segment coverage of `source` with the files `taken` from the twin run."""
     with tempfile.TemporaryDirectory() as scratch:
-        work = Path(scratch) / octagon.name
+        work = Path(scratch) / run.name
         work.mkdir()
-        for item in octagon.iterdir():
+        for item in run.iterdir():
             if item.name in REDONE:
                 continue
-            given = full / item.name if item.name in taken else item
+            given = twin / item.name if item.name in taken else item
             (work / item.name).symlink_to(given.resolve())
         # today's learned stage on these inputs, whatever the run's networks read
-        config = json.loads((octagon / W.CONFIG).read_text())
+        config = json.loads((run / W.CONFIG).read_text())
         W.write_json(work / W.CONFIG, config | {"network_input": NETWORK_INPUT})
         if "region" in taken:
             (work / W.REGION).unlink()
@@ -61,36 +63,36 @@ def learned_values(octagon: Path, full: Path, source: Path, taken: tuple[str, ..
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--octagon", type=Path, required=True)
-    parser.add_argument("--full", type=Path, required=True)
-    parser.add_argument("--data", type=Path, required=True, help="the octagon procedures")
+    parser.add_argument("--runs", type=Path, required=True)
+    parser.add_argument("--twins", type=Path, required=True)
+    parser.add_argument("--data", type=Path, required=True, help="the runs' procedures")
     parser.add_argument("--variants", nargs="+", default=list(VARIANTS), choices=VARIANTS)
     args = parser.parse_args()
     models = Models.load(RunConfig())
     rows: dict[str, list[tuple[float, float, float]]] = {v: [] for v in args.variants}
-    for octagon in sorted(p for p in args.octagon.iterdir() if (p / W.LEARNED).is_file()):
-        full = _twin(octagon, args.full)
-        procedure = Procedure.open(args.data / octagon.name.split("-")[-1])
+    for run in sorted(p for p in args.runs.iterdir() if (p / W.LEARNED).is_file()):
+        twin = _twin(run, args.twins)
+        procedure = Procedure.open(args.data / run.name.split("-")[-1])
         key = pair_key(procedure.coverage.default_pair)
         truth = [s.coverage[key] for s in procedure.coverage.segments]
-        before = [s["coverage"] for s in json.loads((full / W.LEARNED).read_text())["segments"]]
+        before = [s["coverage"] for s in json.loads((twin / W.LEARNED).read_text())["segments"]]
         for variant in args.variants:
-            values = learned_values(octagon, full, procedure.path, VARIANTS[variant], models)
+            values = learned_values(run, twin, procedure.path, VARIANTS[variant], models)
             rows[variant] += list(zip(values, truth, before, strict=True))
-        print(octagon.name, " ".join(f"{v}: {np.round(rows[v][-len(truth):], 3)[:, 0]}"
-                                     for v in args.variants), flush=True)
+        print(run.name, " ".join(f"{v}: {np.round(rows[v][-len(truth):], 3)[:, 0]}"
+                                 for v in args.variants), flush=True)
     for variant, values in rows.items():
         value, truth, before = np.array(values).T
         print(f"{variant:24s} MAE {np.abs(value - truth).mean():.4f} bias "
-              f"{(value - truth).mean():+.4f}; against the full run's learned: mean "
+              f"{(value - truth).mean():+.4f}; against the twin run's learned: mean "
               f"{(value - before).mean():+.4f} ({len(value)} segments)")
 
 
-def _twin(octagon: Path, full: Path) -> Path:
-    """The full run's work folder of the same procedure (named ...-proc_NNNN)."""
-    found = [p for p in full.iterdir() if p.name.endswith(octagon.name.split("-")[-1])]
+def _twin(run: Path, twins: Path) -> Path:
+    """The twin run's work folder of the same procedure (named ...-proc_NNNN)."""
+    found = [p for p in twins.iterdir() if p.name.endswith(run.name.split("-")[-1])]
     if len(found) != 1:
-        raise SystemExit(f"{full}: expected one work folder of {octagon.name}, found {found}")
+        raise SystemExit(f"{twins}: expected one work folder of {run.name}, found {found}")
     return found[0]
 
 

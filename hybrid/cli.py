@@ -6,6 +6,7 @@ import functools
 import json
 import logging
 import tempfile
+from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated
 
@@ -49,6 +50,11 @@ ViewSelfCalibrate = Annotated[bool, typer.Option(
     "120 frames where at least 3 agree, each at 60 degrees or more (1-4 minutes a video on 2 "
     "CPU cores; self_calibration.json); otherwise they run with it hidden. The geometric "
     "branch keeps the intrinsics head's K.")]
+FisheyeFov = Annotated[float | None, typer.Option(
+    "--fisheye-fov", help="The video comes through an equidistant fisheye lens that sees this "
+    "many degrees across the image's width (from the endoscope's specification): its frames "
+    "are resampled to a pinhole camera of the same angle (at most 130 degrees, the widest "
+    "the networks were trained on) before every stage.")]
 PipelineDepth = Annotated[Path | None, typer.Option(help="Depth model (default: shipped).")]
 Insertion = Annotated[bool, typer.Option(
     help="The video is an insertion, not a withdrawal (the look-ahead band lies where the "
@@ -65,8 +71,6 @@ app = typer.Typer(help="C2D2: detect deficient coverage in colonoscopy video.",
 def _direction(config: RunConfig, insertion: bool) -> RunConfig:
     """The configuration for an insertion video (the lumen's ℓ and the travel cues read the
     other way) or for a withdrawal."""
-    from dataclasses import replace
-
     rec = config.reconstruction
     return replace(config, reconstruction=replace(rec, lumen=replace(
         rec.lumen, withdrawal=not insertion)))
@@ -123,6 +127,10 @@ def simulate(
              "frame's corners cut off along 45° lines with legs of 0.15-0.25 of its shorter "
              "side (drawn per procedure; region.png), black in the frames and unseen for the "
              "ground truth. Everything else is the procedure without it.")] = False,
+    fisheye: Annotated[bool, typer.Option(
+        help="Film through a fisheye lens (equidistant, r = f θ) of the field of view across "
+             "the width the pinhole one would have (camera.json's model). Everything else is "
+             "the procedure without it.")] = False,
 ):
     """Simulate procedures with rendered RGB, depth, poses and exact ground-truth coverage."""
     from hybrid.sim.simulate import OCTAGON_CUT, SimConfig, simulate_dataset, with_overrides
@@ -132,7 +140,8 @@ def simulate(
         window_stride = 0 if frame_step and frame_step > 1 else CoverageConfig().segment_stride
     try:
         config = with_overrides(SimConfig(preset=preset, style=style, camera_seed=camera_seed,
-                                          corner_cut=OCTAGON_CUT if octagon else None),
+                                          corner_cut=OCTAGON_CUT if octagon else None,
+                                          lens="equidistant" if fisheye else None),
                                 length_cm, max_frames, frame_step)
     except ValueError as err:
         raise InputError(str(err)) from err
@@ -224,6 +233,7 @@ def run(
     coverage_checkpoint: PipelineCoverage = None,
     insertion: Insertion = False,
     segment_seconds: Annotated[float, typer.Option(help="Segment length.")] = 10.0,
+    fisheye_fov: FisheyeFov = None,
     self_calibrate: ViewSelfCalibrate = False,
     device: Device = "auto",
 ):
@@ -233,7 +243,7 @@ def run(
 
     config = _direction(RunConfig(depth_checkpoint=_opt(depth_checkpoint),
                                   coverage_checkpoint=_opt(coverage_checkpoint), fps=fps,
-                                  segment_seconds=segment_seconds,
+                                  segment_seconds=segment_seconds, fisheye_fov_deg=fisheye_fov,
                                   self_calibrate=self_calibrate), insertion)
     result = run_video(video, out, config, Models.load(config, pick_device(device)),
                        region=_read_mask(mask), echo=typer.echo)
@@ -259,6 +269,7 @@ def batch(
     coverage_checkpoint: PipelineCoverage = None,
     insertion: Annotated[bool, typer.Option(
         help="The videos are insertions, not withdrawals (all of them).")] = False,
+    fisheye_fov: FisheyeFov = None,
     self_calibrate: ViewSelfCalibrate = False,
     device: Device = "auto",
 ):
@@ -271,6 +282,7 @@ def batch(
 
     config = _direction(RunConfig(depth_checkpoint=_opt(depth_checkpoint),
                                   coverage_checkpoint=_opt(coverage_checkpoint),
+                                  fisheye_fov_deg=fisheye_fov,
                                   self_calibrate=self_calibrate), insertion)
     summary = run_batch(folder, out, config, workers=workers, device=pick_device(device))
     rows = list(csv.DictReader(summary.open()))
@@ -289,6 +301,10 @@ def eval_pipeline(
     out: Annotated[Path, typer.Option(help="Work folders per procedure and eval.json.")],
     depth_checkpoint: PipelineDepth = None,
     coverage_checkpoint: PipelineCoverage = None,
+    known_lens: Annotated[bool, typer.Option(
+        help="Run each fisheye procedure (simulate --fisheye) with its field of view across "
+             "the width from its camera.json, as `c2d2 run --fisheye-fov` is given an "
+             "endoscope's specification. Pinhole procedures run as they are.")] = False,
     self_calibrate: ViewSelfCalibrate = False,
     device: Device = "auto",
 ):
@@ -307,7 +323,8 @@ def eval_pipeline(
     paths = expand_inputs(data)
     _each_once(paths)
     procedures = [Procedure.open(p) for p in paths]
-    summary = evaluate_pipeline(procedures, out, config, models, echo=typer.echo)
+    summary = evaluate_pipeline(procedures, out, config, models, echo=typer.echo,
+                                known_lens=known_lens)
     typer.echo(json.dumps(summary["summary"], indent=1))
 
 
@@ -632,8 +649,6 @@ def eval_coverage(
     procedures), bias and 3-class accuracy, deficient segments found (recall, precision), with
     scatter plots; metrics.json also holds each procedure's segments, which
     benchmarks/eval_spread.py compares between two evaluations."""
-    from dataclasses import replace
-
     from learned.coverage_eval import (
         coverage_metrics,
         format_table,
@@ -689,6 +704,7 @@ def adapt(
     source: Annotated[list[Path] | None, typer.Option(
         help="Synthetic videos or procedures the model was NOT trained on: their windows "
              "replace the training windows as CORAL's source statistics.")] = None,
+    fisheye_fov: FisheyeFov = None,
     self_calibrate: ViewSelfCalibrate = False,
     device: Device = "auto",
 ):
@@ -717,7 +733,7 @@ def adapt(
         raise InputError(f"folder for --out does not exist: {out.parent}")
     config = _direction(RunConfig(depth_checkpoint=_opt(depth_checkpoint),
                                   coverage_checkpoint=str(model or _shipped_coverage()),
-                                  segment_seconds=segment_seconds,
+                                  segment_seconds=segment_seconds, fisheye_fov_deg=fisheye_fov,
                                   self_calibrate=self_calibrate), insertion)
     models = Models.load(config, pick_device(device))
     T, stride = models.coverage.config.segment_frames, models.coverage.config.segment_stride
@@ -729,9 +745,10 @@ def adapt(
             yield resample_features(*video_features(path, work / str(k), config, models), T)
 
     with tempfile.TemporaryDirectory() as work:
-        if source:  # simulated withdrawals, whatever the target videos are
+        if source:  # simulated pinhole withdrawals, whatever the target videos are
+            simulated = replace(_direction(config, False), fisheye_fov_deg=None)
             windows = set_source(models.coverage, features(
-                source, Path(work) / "source", _direction(config, False)), stride)
+                source, Path(work) / "source", simulated), stride)
             typer.echo(f"CORAL source statistics from {windows} held-out windows")
         windows = fit(models.coverage, features(target, Path(work) / "target", config), stride)
     if models.coverage.segment.holds_table() and not models.coverage.segment.calibrates():

@@ -224,11 +224,7 @@ class VisibilityOracle:
         R, p = pose[:3, :3], pose[:3, 3]
         rel = self.mesh.vertices[vertex_ids] - p
         xc = rel @ R  # camera coordinates, = R^T (X - p)
-        z = xc[:, 2]
-        in_front = z > 1e-6
-        zs = np.where(in_front, z, 1.0)
-        u = cam.fx * xc[:, 0] / zs + cam.cx
-        v = cam.fy * xc[:, 1] / zs + cam.cy
+        u, v, in_front = cam.project(xc)
         mask = in_front & (u >= -0.5) & (u <= cam.width - 0.5) & (v >= -0.5) & (
             v <= cam.height - 0.5)
         if self.region is not None:  # the pixel it projects into must be shown

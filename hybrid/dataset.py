@@ -4,7 +4,8 @@ One folder per procedure:
 
     rgb/000000.png     RGB frames, 8-bit PNG (lossless)
     depth/000000.png   z-depth, 16-bit PNG: depth_cm = value * DEPTH_UNIT_CM, 0 = no surface
-    camera.json        width, height, fx, fy, cx, cy (pixels), fps
+    camera.json        width, height, fx, fy, cx, cy (pixels), fps, model (pinhole, or
+                       equidistant: `c2d2 simulate --fisheye`)
     poses.npy          (N, 4, 4) float64 camera-to-world poses, cm
     colon.ply          ground-truth mesh, cm
     lumen.npy          (M, 3) float64 centerline from the rectum end, cm

@@ -14,6 +14,7 @@ from __future__ import annotations
 import json
 import logging
 from collections.abc import Callable
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -90,15 +91,26 @@ def work_folder(out: Path, proc: Procedure) -> Path:
     return Path(out) / f"{proc.path.parent.name}-{proc.path.name}"
 
 
+def procedure_config(config: RunConfig, proc: Procedure, known_lens: bool) -> RunConfig:
+    """The run configuration of one simulated procedure: with known_lens, a fisheye one's
+    field of view across the width from its camera, as a user gives the endoscope's
+    specification (--fisheye-fov)."""
+    if known_lens and proc.camera.model == "equidistant":
+        return replace(config, fisheye_fov_deg=proc.camera.hfov_deg)
+    return config
+
+
 def evaluate_pipeline(procedures: list[Procedure], out: Path, config: RunConfig,
-                      models: Models, echo: Callable[[str], None] | None = None) -> dict:
+                      models: Models, echo: Callable[[str], None] | None = None,
+                      known_lens: bool = False) -> dict:
     out = Path(out)
     echo = echo or log.info
     rows = []
     views: dict[str, int] = {}
     for proc in procedures:
         work = work_folder(out, proc)
-        run_video(proc.path, work, config, models, progress=False, echo=lambda _: None)
+        run_video(proc.path, work, procedure_config(config, proc, known_lens), models,
+                  progress=False, echo=lambda _: None)
         if "field_of_view" in (learned := json.loads((work / W.LEARNED).read_text())):
             source = learned["field_of_view"]["source"]
             views[source] = views.get(source, 0) + 1
@@ -122,6 +134,7 @@ def evaluate_pipeline(procedures: list[Procedure], out: Path, config: RunConfig,
     result = {"summary": summary, "checkpoints": models.tags,
               "geometric_weight": config.geometric_weight,
               "self_calibrate": config.self_calibrate, "field_of_view": views or None,
+              "known_lens": known_lens,
               "segments": rows}
     W.write_json(out / "eval.json", result)
     _scatter(rows, out / "eval_scatter.png")

@@ -13,6 +13,12 @@ pixels above 245), blurred (variance of the Laplacian of the grey frame below 20
 networks' size). A video that decodes fewer frames than its container declares (FFmpeg skips
 corrupt frames and goes on, or stops where a file is cut short) is kept with the frames that
 decode and the loss is recorded (`decode_warning`).
+
+A video filmed through a fisheye lens of a known field of view (`fisheye_fov_deg`, across
+the image region's width, equidistant) has each frame resampled, after the crop and resize,
+to the pinhole camera that sees the same angle across the width (`hybrid.lens`; at most
+`WIDEST_DEG`), so that every later stage reads a pinhole video; the region becomes the part
+of it the lens shows.
 """
 
 from __future__ import annotations
@@ -26,6 +32,7 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
+from hybrid.lens import WIDEST_DEG, equidistant, pinhole_twin, resample, resampling_maps
 from hybrid.npyio import NpyWriter
 from hybrid.types import InputError
 from hybrid.workdir import write_json
@@ -61,6 +68,7 @@ class Ingested:
     overexposed: list[bool]
     blurred: list[bool]
     decode_warning: str | None = None
+    fisheye_fov_deg: float | None = None
 
     @property
     def usable(self) -> np.ndarray:
@@ -86,7 +94,8 @@ class _Source:
 
 
 def ingest(path: Path, size: tuple[int, int], frames_out: Path, region: np.ndarray | None = None,
-           fps: float | None = None, progress: bool = False) -> tuple[Ingested, np.ndarray]:
+           fps: float | None = None, progress: bool = False,
+           fisheye_fov_deg: float | None = None) -> tuple[Ingested, np.ndarray]:
     """Write frames_out (N, H, W, 3) uint8 and return the record and the region at (H, W)."""
     source = _open(Path(path), fps, region)
     first_pass = tqdm(source.open(), total=source.count_hint or None, unit="frame",
@@ -112,6 +121,12 @@ def ingest(path: Path, size: tuple[int, int], frames_out: Path, region: np.ndarr
             raise InputError(f"{path}: {err}") from err
     crop = Crop.of(region, shape, str(path))
     small_region = crop.fit_region(region, size)
+    to_pinhole = None
+    if fisheye_fov_deg is not None:
+        lens = equidistant(fisheye_fov_deg, crop.width, crop.height).resized(size[1], size[0])
+        to_pinhole = resampling_maps(lens, pinhole_twin(lens, WIDEST_DEG))
+        small_region = resample(small_region.astype(np.uint8), to_pinhole,
+                                cv2.INTER_NEAREST) > 0
     # The Laplacian at the region's edge reads the step to the black border, also where the
     # region meets the frame's edge: keep it out.
     sharpness_region = cv2.erode(small_region.astype(np.uint8), np.ones((5, 5), np.uint8),
@@ -129,6 +144,8 @@ def ingest(path: Path, size: tuple[int, int], frames_out: Path, region: np.ndarr
             if index == count:
                 break
             small = crop.fit(frame, size, cv2.INTER_AREA)
+            if to_pinhole is not None:
+                small = resample(small, to_pinhole)
             stack[index:index + 1] = small[None]
             grey = cv2.cvtColor(small, cv2.COLOR_RGB2GRAY)
             inside = grey[small_region]
@@ -152,7 +169,7 @@ def ingest(path: Path, size: tuple[int, int], frames_out: Path, region: np.ndarr
                    f"frames after a damaged part are up to "
                    f"{(source.count_hint - count) / source.fps:.1f} s early")
     record = Ingested(source.name, source.fps, count, shape[1], shape[0], asdict(crop), dark,
-                      bright, blurred, warning)
+                      bright, blurred, warning, fisheye_fov_deg)
     return record, small_region
 
 

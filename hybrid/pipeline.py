@@ -84,6 +84,10 @@ class RunConfig:
     """Override the video's frame rate (image folders default to 30)."""
     segment_seconds: float = 10.0
     """Segment length."""
+    fisheye_fov_deg: float | None = None
+    """The video comes through an equidistant fisheye lens that sees this many degrees
+    across the image region's width (the endoscope's specification): ingestion resamples
+    its frames to a pinhole camera (hybrid.ingest). None: a pinhole video."""
     min_usable_fraction: float = 0.5
     """A segment is assessable when at least this fraction of its frames is usable."""
     deficient_below: float = CLASS_EDGES[0]
@@ -115,6 +119,9 @@ class RunConfig:
         if not 0 < self.segment_seconds < math.inf:
             raise InputError(f"segments must last a positive, finite time, got "
                              f"{self.segment_seconds}")
+        if self.fisheye_fov_deg is not None and not 0 < self.fisheye_fov_deg < 360:
+            raise InputError(f"a fisheye's field of view must lie between 0 and 360 degrees, "
+                             f"got {self.fisheye_fov_deg}")
         if not (math.isfinite(self.geometric_weight) and self.geometric_weight >= 0):
             raise InputError(f"the geometric coverage's weight must be a finite number, 0 or "
                              f"more, got {self.geometric_weight}")
@@ -217,7 +224,7 @@ class _Run:
 
     def ingest(self) -> None:
         record, region = ingest(self.source, self.size, self.path(W.FRAMES), self.region_input,
-                                self.config.fps, self.progress)
+                                self.config.fps, self.progress, self.config.fisheye_fov_deg)
         W.write_png(self.path(W.REGION), region.astype(np.uint8) * 255)
         record.save(self.path(W.INGEST))  # last: its presence marks the stage complete
 
@@ -570,7 +577,7 @@ def _differing(before: dict, now: dict, prefix: str = "") -> str:
     return "; ".join(names)
 
 
-SETTINGS_ADDED = {"self_calibrate": False}
+SETTINGS_ADDED = {"self_calibrate": False, "fisheye_fov_deg": None}
 """Settings added to RunConfig since work folders were first made, each with the value that
 computes what runs made before it did: a folder that does not record one was made with it."""
 

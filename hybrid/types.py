@@ -12,6 +12,9 @@ from pathlib import Path
 
 import numpy as np
 
+#: Lens models a Camera describes (see Camera.model).
+CAMERA_MODELS = ("pinhole", "equidistant")
+
 #: Image size (height, width) of each preset.
 PRESET_IMAGE_SIZE = {"fast": (128, 160), "paper": (320, 384)}
 
@@ -22,7 +25,13 @@ class InputError(ValueError):
 
 @dataclass(frozen=True)
 class Camera:
-    """Pinhole camera; intrinsics in pixels of a width x height image (OpenCV convention)."""
+    """Intrinsics in pixels of a width x height image (OpenCV convention).
+
+    model: 'pinhole', or 'equidistant', a fisheye lens whose image radius grows with the
+    angle from the optical axis, r = f θ (OpenCV's fisheye model without its distortion
+    terms). Its fx, fy are the magnification at the image centre, where it and a pinhole
+    camera of the same K agree.
+    """
 
     width: int
     height: int
@@ -31,6 +40,7 @@ class Camera:
     cx: float
     cy: float
     fps: float = 30.0
+    model: str = "pinhole"
 
     def __post_init__(self) -> None:
         values = (self.width, self.height, self.fx, self.fy, self.cx, self.cy, self.fps)
@@ -38,25 +48,54 @@ class Camera:
             raise InputError(f"camera has a non-finite value: {self}")
         if self.width < 1 or self.height < 1 or self.fx <= 0 or self.fy <= 0 or self.fps <= 0:
             raise InputError(f"camera needs positive width, height, fx, fy and fps: {self}")
+        if self.model not in CAMERA_MODELS:
+            raise InputError(f"camera model must be one of {CAMERA_MODELS}, got {self.model!r}")
 
     @property
     def K(self) -> np.ndarray:
-        """3x3 intrinsic matrix (float64)."""
+        """3x3 intrinsic matrix (float64); with a fisheye model, not the whole projection."""
         return np.array([[self.fx, 0, self.cx], [0, self.fy, self.cy], [0, 0, 1]], dtype=np.float64)
 
     @property
     def hfov_deg(self) -> float:
         """Horizontal field of view in degrees (the angle across the image at the focal
         length fx)."""
-        return float(np.degrees(2 * np.arctan(self.width / (2 * self.fx))))
+        half = self.width / (2 * self.fx)
+        return float(np.degrees(2 * (half if self.model == "equidistant" else np.arctan(half))))
 
     def resized(self, width: int, height: int) -> Camera:
         """The same camera for an image resized to width x height (pixel-centre convention)."""
         sx, sy = width / self.width, height / self.height
         return Camera(
             width, height, self.fx * sx, self.fy * sy,
-            (self.cx + 0.5) * sx - 0.5, (self.cy + 0.5) * sy - 0.5, self.fps,
+            (self.cx + 0.5) * sx - 0.5, (self.cy + 0.5) * sy - 0.5, self.fps, self.model,
         )
+
+    def pixel_rays(self) -> np.ndarray:
+        """(height, width, 3) float64 direction of each pixel centre's ray in camera
+        coordinates, scaled to z = 1 (so a hit's distance along it is its z-depth); an error
+        for a fisheye that sees 90° or more off its axis, where z-depth is not defined."""
+        v, u = np.mgrid[0:self.height, 0:self.width].astype(np.float64)
+        a, b = (u - self.cx) / self.fx, (v - self.cy) / self.fy
+        if self.model == "equidistant":  # at the angle θ = |(a, b)|, z = 1 lies tan θ out
+            theta = np.hypot(a, b)
+            if theta.max() >= np.pi / 2:
+                raise InputError(f"this equidistant camera sees {np.degrees(theta.max()):.0f}° "
+                                 f"off its axis; z-depth is defined below 90°: {self}")
+            stretch = np.where(theta > 1e-9, np.tan(theta) / np.maximum(theta, 1e-9), 1.0)
+            a, b = a * stretch, b * stretch
+        return np.stack([a, b, np.ones_like(a)], axis=-1)
+
+    def project(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Pixel coordinates u, v of (N, 3) points in camera coordinates, and whether each is
+        in front of the camera (z > 0); u, v are meaningless where it is not."""
+        x, y, z = points[:, 0], points[:, 1], points[:, 2]
+        in_front = z > 1e-6
+        zs = np.where(in_front, z, 1.0)
+        if self.model == "equidistant":  # a pinhole's z that gives the same image radius
+            rho = np.hypot(x, y)
+            zs = np.where(rho > 1e-12, rho / np.maximum(np.arctan2(rho, z), 1e-300), zs)
+        return self.fx * x / zs + self.cx, self.fy * y / zs + self.cy, in_front
 
     def save(self, path: Path) -> None:
         Path(path).write_text(json.dumps(asdict(self), indent=2) + "\n")
@@ -69,7 +108,7 @@ class Camera:
         try:
             data = json.loads(path.read_text())
             return cls(**{k: data[k] for k in ("width", "height", "fx", "fy", "cx", "cy")},
-                       fps=data.get("fps", 30.0))
+                       fps=data.get("fps", 30.0), model=data.get("model", "pinhole"))
         except (json.JSONDecodeError, KeyError, TypeError) as err:
             raise InputError(
                 f"camera file {path} must be JSON with width, height, fx, fy, cx, cy, fps: {err}"

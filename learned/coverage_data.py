@@ -78,6 +78,10 @@ def procedure_samples(path: Path, config: CoverageConfig, depth_model: DepthMode
     travel gap), its travel then read over the same time as at the full rate.
     """
     proc = Procedure.open(path)
+    if config.field_of_view == "true" and proc.camera.model != "pinhole":
+        raise InputError(f"{proc.path}: the true field-of-view input is a pinhole camera's; "
+                         f"this procedure's is {proc.camera.model} (field_of_view 'none' or "
+                         f"'predicted' read it)")
     truth = proc.coverage
     T, stride = config.segment_frames, config.segment_stride
     step = config.frame_rate / proc.camera.fps  # frames of the training rate per frame here

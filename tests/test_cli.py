@@ -298,6 +298,21 @@ def test_simulate_labels_the_coverage_networks_windows(tmp_path):
     assert not (tmp_path / "bad").exists()
 
 
+def test_simulate_fisheye_films_the_same_procedure_through_an_equidistant_lens(tmp_path):
+    from hybrid.dataset import Procedure
+
+    common = ["simulate", "--length-cm", "14", "--max-frames", "4", "--window-stride", "0"]
+    for name, flags in (("pinhole", []), ("fisheye", ["--fisheye"])):
+        result = runner.invoke(app, [*common, *flags, "--out", str(tmp_path / name)])
+        assert result.exit_code == 0, result.output
+    pinhole, fisheye = (Procedure.open(tmp_path / name / "proc_0000")
+                        for name in ("pinhole", "fisheye"))
+    assert (pinhole.camera.model, fisheye.camera.model) == ("pinhole", "equidistant")
+    assert fisheye.camera.hfov_deg == pytest.approx(pinhole.camera.hfov_deg)
+    np.testing.assert_array_equal(fisheye.poses, pinhole.poses)
+    assert not np.array_equal(fisheye.rgb(0), pinhole.rgb(0))
+
+
 def test_demo_prints_the_truth_and_both_branches(tmp_path):
     """`c2d2 demo`, the README's main command, on its shortest video: each printed row holds
     the simulated procedure's true coverage and the run's learned and geometric values, the

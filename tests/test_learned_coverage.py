@@ -234,6 +234,16 @@ def test_a_net_trained_with_the_field_of_view_sometimes_hidden_serves_both_cases
     assert errors[0.0, "hidden"] > 2 * errors[0.5, "hidden"], errors
 
 
+def test_the_true_field_of_view_of_a_fisheye_procedure_is_refused(tmp_path, sim_config):
+    """The true field-of-view input is log(W / 2 fx), a pinhole's half-angle tangent."""
+    from hybrid.sim.simulate import simulate_procedure, with_overrides
+
+    path = simulate_procedure(tmp_path, 7, 0, replace(with_overrides(sim_config, max_frames=4),
+                                                      lens="equidistant"))
+    with pytest.raises(InputError, match="true field-of-view input is a pinhole camera's"):
+        procedure_samples(path, replace(SMALL, field_of_view="true"), None, "none")
+
+
 def test_view_hidden_needs_a_field_of_view_and_adds_the_known_value():
     assert replace(SMALL, field_of_view="true", view_hidden=0.5).cue_size == \
         replace(SMALL, field_of_view="true").cue_size + 1

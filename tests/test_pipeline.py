@@ -577,7 +577,7 @@ def test_settings_added_since_a_folder_was_made_are_filled_in_as_it_was_made():
     assert made_with(recorded) == recorded_config(before) != recorded_config(
         RunConfig(self_calibrate=True))
     plain = recorded_config(RunConfig())
-    del plain["self_calibrate"]
+    del plain["self_calibrate"], plain["fisheye_fov_deg"]
     assert made_with(plain) == recorded_config(RunConfig())
 
 
@@ -623,6 +623,23 @@ def test_eval_scores_the_run_and_names_its_models(pipeline_run, procedure, tmp_p
     assert [r["truth"] for r in saved["segments"]] == pytest.approx(truth)
     learned_mae = np.mean([abs(r["learned"] - t) for r, t in zip(table, truth, strict=True)])
     assert saved["summary"]["learned"]["mae"] == pytest.approx(learned_mae)
+
+
+def test_eval_with_a_known_lens_gives_each_fisheye_procedure_its_field_of_view(procedure,
+                                                                              tmp_path):
+    from hybrid.evaluate import procedure_config
+
+    config = RunConfig(segment_seconds=5.0)
+    copy = tmp_path / procedure.path.name
+    shutil.copytree(procedure.path, copy)
+    camera = replace(procedure.camera, model="equidistant", fx=60.0)
+    camera.save(copy / "camera.json")
+    fisheye = Procedure.open(copy)
+    given = procedure_config(config, fisheye, known_lens=True)
+    assert given.fisheye_fov_deg == pytest.approx(np.degrees(camera.width / 60.0))
+    assert replace(given, fisheye_fov_deg=None) == config
+    assert procedure_config(config, fisheye, known_lens=False) == config
+    assert procedure_config(config, procedure, known_lens=True) == config
 
 
 def test_eval_refuses_a_procedure_given_twice(procedure, tmp_path):
@@ -870,6 +887,39 @@ def test_a_simulated_octagon_is_the_region_ingested_and_the_one_detected(sim_con
     detected = detect_region([octagon.rgb(i) for i in range(octagon.num_frames)])
     assert not (detected & ~region).any()
     assert detected[binary_erosion(region, np.ones((5, 5)), border_value=0)].all()
+
+
+def test_a_fisheye_video_is_ingested_as_its_pinhole_twin(sim_config, tmp_path):
+    """--fisheye-fov: each frame of a simulated fisheye procedure (centred, square pixels)
+    resampled to the pinhole that sees its width's angle, as benchmarks/fisheye_to_pinhole.py
+    does with the true lens; the region is where the lens reaches. The angle must be one."""
+    from hybrid.ingest import Ingested, ingest
+    from hybrid.lens import WIDEST_DEG, pinhole_twin, resample, resampling_maps
+    from hybrid.sim.simulate import SimConfig, simulate_procedure, with_overrides
+
+    assert SimConfig().hfov_deg[1] == WIDEST_DEG
+    config = replace(with_overrides(sim_config, max_frames=4), lens="equidistant",
+                     aspect_jitter=0.0, principal_jitter=0.0)
+    fisheye = Procedure.open(simulate_procedure(tmp_path, 3, 0, config))
+    camera = fisheye.camera
+    assert camera.hfov_deg < WIDEST_DEG
+    record, region = ingest(fisheye.path, (camera.height, camera.width), tmp_path / "frames.npy",
+                            fisheye_fov_deg=camera.hfov_deg)
+    maps = resampling_maps(camera, pinhole_twin(camera))
+    frames = np.load(tmp_path / "frames.npy")
+    for i in range(fisheye.num_frames):
+        expected = resample(fisheye.rgb(i), maps).astype(int)
+        assert np.abs(frames[i] - expected).max() <= 1
+    reach = resample(np.ones(region.shape, np.uint8), maps, cv2.INTER_NEAREST) > 0
+    np.testing.assert_array_equal(region, reach)
+    assert 0.8 < region.mean() < 1
+    record.save(tmp_path / "ingest.json")
+    assert Ingested.load(tmp_path / "ingest.json").fisheye_fov_deg == camera.hfov_deg
+    _, plain = ingest(fisheye.path, region.shape, tmp_path / "plain.npy")
+    assert plain.all() and not np.array_equal(np.load(tmp_path / "plain.npy"), frames)
+    for bad in (0.0, 360.0):
+        with pytest.raises(InputError, match="between 0 and 360 degrees"):
+            RunConfig(fisheye_fov_deg=bad)
 
 
 def test_ingest_refuses_an_image_region_too_thin_to_judge_frames_by(frames, tmp_path):
@@ -1194,6 +1244,15 @@ def hand_made_work_dir(out: Path, geometric: list[float | None] | None) -> Inges
 def test_a_segment_length_or_frame_rate_that_is_not_a_positive_number_is_refused(fields):
     with pytest.raises(InputError, match="positive"):
         RunConfig(**fields)
+
+
+@pytest.mark.parametrize("command", ["run VIDEO --out OUT", "batch DIR --out OUT",
+                                     "adapt --target DIR --out OUT/model.safetensors"])
+def test_run_batch_and_adapt_take_a_fisheye_field_of_view(command, tmp_path):
+    args = command.replace("VIDEO", str(tmp_path / "video.avi")).replace(
+        "DIR", str(tmp_path)).replace("OUT", str(tmp_path)).split()
+    result = runner.invoke(app, [*args, "--fisheye-fov", "400"])
+    assert result.exit_code == 2 and "between 0 and 360 degrees, got 400" in result.stderr
 
 
 def test_combined_coverage_weighs_the_geometric_value_by_its_weight_and_support():

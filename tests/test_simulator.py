@@ -7,13 +7,15 @@ import shutil
 from dataclasses import replace
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 from conftest import make_cylinder
-from scipy.ndimage import binary_dilation
+from scipy.ndimage import binary_dilation, binary_erosion
 
-from hybrid.coverage import Lumen, compute_coverage
+from hybrid.coverage import Lumen, VisibilityOracle, compute_coverage
 from hybrid.dataset import Procedure, window_labels_path
+from hybrid.lens import equidistant, pinhole_twin, resample, resampling_maps
 from hybrid.sim.appearance import TEXELS_PER_CM, get_style
 from hybrid.sim.colon import Colon, ColonConfig, make_colon
 from hybrid.sim.render import ColonRenderer
@@ -92,12 +94,12 @@ def test_a_complete_procedure_of_other_settings_is_refused(tmp_path, simulated, 
     assert (copy / "coverage.json").read_text() == kept
 
 
-def test_a_procedure_simulated_before_camera_seed_and_corner_cut_existed_resumes(
+def test_a_procedure_simulated_before_camera_seed_lens_and_corner_cut_existed_resumes(
         tmp_path, simulated, sim_config):
     copy = tmp_path / simulated.name
     shutil.copytree(simulated, copy)
     meta = json.loads((copy / "meta.json").read_text())
-    del meta["config"]["camera_seed"], meta["config"]["corner_cut"]
+    del meta["config"]["camera_seed"], meta["config"]["lens"], meta["config"]["corner_cut"]
     (copy / "meta.json").write_text(json.dumps(meta))
     marker = '{"marker": true}\n'
     (copy / "coverage.json").write_text(marker)
@@ -105,6 +107,8 @@ def test_a_procedure_simulated_before_camera_seed_and_corner_cut_existed_resumes
     assert (copy / "coverage.json").read_text() == marker
     with pytest.raises(InputError, match="differing: camera_seed"):
         simulate_procedure(tmp_path, 7, 0, replace(sim_config, camera_seed=1))
+    with pytest.raises(InputError, match="differing: lens"):
+        simulate_procedure(tmp_path, 7, 0, replace(sim_config, lens="equidistant"))
 
 
 def test_frame_step_keeps_every_kth_frame_with_its_truth(tmp_path, simulated, sim_config):
@@ -244,6 +248,108 @@ def test_camera_field_of_view_is_the_angle_across_the_image():
         Camera(160, 128, 50.0, 50.0, 79.5, 63.5).hfov_deg)
 
 
+def test_an_equidistant_camera_images_an_angle_at_f_times_it():
+    """r = f θ: a point θ off the axis, in the direction φ, lands at (cx + fx θ cos φ,
+    cy + fy θ sin φ) at any distance; each pixel's ray (z = 1) projects back onto it; a
+    pinhole of the same K puts the same point at f tan θ."""
+    fisheye = Camera(160, 128, 70.0, 72.0, 81.0, 62.0, model="equidistant")
+    pinhole = replace(fisheye, model="pinhole")
+    theta, phi = np.radians([0.0, 10.0, 45.0, 80.0, 95.0]), np.radians([0, 30, 150, 250, 40])
+    for distance in (0.5, 7.0):
+        points = distance * np.stack([np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi),
+                                      np.cos(theta)], axis=1)
+        u, v, in_front = fisheye.project(points)
+        np.testing.assert_allclose(u[:4], 81.0 + 70.0 * theta[:4] * np.cos(phi[:4]), atol=1e-9)
+        np.testing.assert_allclose(v[:4], 62.0 + 72.0 * theta[:4] * np.sin(phi[:4]), atol=1e-9)
+        assert in_front.tolist() == [True, True, True, True, False]
+        u, _, _ = pinhole.project(points)
+        np.testing.assert_allclose(u[:4], 81.0 + 70.0 * np.tan(theta[:4]) * np.cos(phi[:4]),
+                                   atol=1e-9)
+    for camera in (fisheye, pinhole):
+        rays = camera.pixel_rays()
+        assert rays.shape == (128, 160, 3) and (rays[..., 2] == 1).all()
+        u, v, in_front = camera.project(3.0 * rays.reshape(-1, 3))
+        grid_v, grid_u = np.mgrid[0:128, 0:160]
+        np.testing.assert_allclose(u, grid_u.ravel(), atol=1e-9)
+        np.testing.assert_allclose(v, grid_v.ravel(), atol=1e-9)
+        assert in_front.all()
+    # the width spans 2 × 80 px / fx radians; a resize keeps the model and the angle
+    assert fisheye.hfov_deg == pytest.approx(np.degrees(160 / 70.0))
+    assert fisheye.resized(320, 256).model == "equidistant"
+    assert fisheye.resized(320, 256).hfov_deg == pytest.approx(fisheye.hfov_deg)
+
+
+def test_a_camera_keeps_its_model_on_disk_and_refuses_rays_it_cannot_render(tmp_path):
+    fisheye = Camera(160, 128, 70.0, 72.0, 81.0, 62.0, fps=10.0, model="equidistant")
+    fisheye.save(tmp_path / "camera.json")
+    assert Camera.load(tmp_path / "camera.json") == fisheye
+    older = json.loads((tmp_path / "camera.json").read_text())
+    del older["model"]  # written before the model existed: a pinhole
+    (tmp_path / "camera.json").write_text(json.dumps(older))
+    assert Camera.load(tmp_path / "camera.json") == replace(fisheye, model="pinhole")
+    with pytest.raises(InputError, match="camera model must be one of"):
+        Camera(160, 128, 70.0, 72.0, 81.0, 62.0, model="fisheye")
+    # a pixel 90° or more off the axis has no z-depth to render (half the diagonal: 102 px)
+    with pytest.raises(InputError, match="sees 91° off its axis"):
+        Camera(160, 128, 64.0, 64.0, 79.5, 63.5, model="equidistant").pixel_rays()
+    assert np.isfinite(Camera(160, 128, 66.0, 66.0, 79.5, 63.5, model="equidistant").pixel_rays()
+                       ).all()
+
+
+def test_a_fisheye_procedure_is_its_pinhole_twin_through_another_lens(sim_config):
+    """lens='equidistant': the same draws, so the same colon, withdrawal, texture, principal
+    point and aspect, and the same field of view across the width."""
+    fisheye_config = replace(sim_config, lens="equidistant")
+    for index in (0, 3):
+        pinhole, fisheye = draw_scene(sim_config, 2, index), draw_scene(fisheye_config, 2, index)
+        assert (pinhole.camera.model, fisheye.camera.model) == ("pinhole", "equidistant")
+        assert fisheye.camera.hfov_deg == pytest.approx(pinhole.camera.hfov_deg)
+        assert fisheye.camera.fx > pinhole.camera.fx  # the centre magnified
+        assert fisheye.camera == replace(pinhole.camera, model="equidistant",
+                                         fx=fisheye.camera.fx, fy=fisheye.camera.fy)
+        assert fisheye.camera.fy / fisheye.camera.fx == pytest.approx(
+            pinhole.camera.fy / pinhole.camera.fx)
+        np.testing.assert_array_equal(fisheye.poses, pinhole.poses)
+        np.testing.assert_array_equal(fisheye.colon.vertices, pinhole.colon.vertices)
+        np.testing.assert_array_equal(fisheye.renderer.texture, pinhole.renderer.texture)
+    with pytest.raises(ValueError, match="lens must be None"):
+        replace(sim_config, lens="fisheye")
+
+
+def test_a_fisheye_truth_sees_the_wall_where_its_frames_show_it(tmp_path, sim_config):
+    """The ground truth's camera and the renderer's agree through a fisheye: a vertex the
+    oracle counts as seen projects onto a pixel whose rendered depth is its own z-depth.
+    Projected as through a pinhole of the same K, the seen vertices land on pixels of
+    other depths, and the coverage differs."""
+    config = with_overrides(replace(sim_config, lens="equidistant"), length_cm=30.0)
+    proc = Procedure.open(simulate_procedure(tmp_path, 7, 0, config))
+    camera, mesh = proc.camera, proc.mesh()
+    assert camera.model == "equidistant"
+    oracles = {"fisheye": VisibilityOracle(mesh, camera),
+               "pinhole": VisibilityOracle(mesh, replace(camera, model="pinhole"))}
+    ids = np.arange(len(mesh.vertices))
+    for i in (0, 20, 39):
+        pose = proc.poses[i]
+        xc = (mesh.vertices - pose[:3, 3]) @ pose[:3, :3]
+        depth = proc.depth(i)
+        errors = {}
+        for name, oracle in oracles.items():
+            seen = oracle.visible(pose, ids)
+            u, v, _ = oracle.camera.project(xc[seen])
+            column = np.clip(np.floor(u + 0.5), 0, camera.width - 1).astype(int)
+            row = np.clip(np.floor(v + 0.5), 0, camera.height - 1).astype(int)
+            rel = np.abs(depth[row, column] / xc[seen, 2] - 1)
+            errors[name] = (np.percentile(rel, 90), seen.sum())
+        # 90% within 1%; through the pinhole, whose K sees less, a tenth are off by 10% or more
+        assert errors["fisheye"][0] < 0.01 and errors["pinhole"][0] > 0.1, errors
+        assert errors["fisheye"][1] > errors["pinhole"][1], errors
+    recomputed = compute_coverage(mesh, Lumen(proc.lumen), proc.poses, camera,
+                                  sim_config.segment_frames)
+    assert recomputed.to_json() == proc.coverage.to_json()
+    assert compute_coverage(mesh, Lumen(proc.lumen), proc.poses, replace(camera, model="pinhole"),
+                            sim_config.segment_frames).to_json() != proc.coverage.to_json()
+
+
 def test_camera_seed_takes_that_seeds_camera_and_nothing_else(sim_config):
     pink = replace(sim_config, style="pink")
     dusk = replace(sim_config, style="dusk")
@@ -262,9 +368,9 @@ def test_camera_seed_takes_that_seeds_camera_and_nothing_else(sim_config):
     assert not np.array_equal(regions[0], regions[2])
 
 
-def test_rendered_depth_of_a_straight_tube_is_analytic():
-    """Camera on the axis of an open tube looking along it: the ray through pixel (u, v) with
-    direction (a, b, 1) meets the wall at z-depth R / sqrt(a² + b²), or leaves the tube."""
+def tube_renderer(camera: Camera):
+    """An open straight tube of radius 2 cm along z from 0 to 10 cm, evenly grey, and its
+    renderer for `camera`."""
     tube = make_cylinder(radius=2.0, length=10.0, spacing=0.1, segments=256)
     n_rings = int(round(tube.length / tube.spacing)) + 1
     z = np.linspace(0.0, tube.length, n_rings)
@@ -277,8 +383,17 @@ def test_rendered_depth_of_a_straight_tube_is_analytic():
     circumference = 2 * np.pi * tube.radius
     texture = np.full((int(tube.length * TEXELS_PER_CM) + 2,
                        int(circumference * TEXELS_PER_CM), 3), 0.5, np.float32)
-    camera = Camera(160, 128, 60.0, 62.0, 83.2, 60.7)
-    renderer = ColonRenderer(colon, texture, get_style("pink"), camera, circumference)
+    return tube, ColonRenderer(colon, texture, get_style("pink"), camera, circumference)
+
+
+@pytest.mark.parametrize("camera", [Camera(160, 128, 60.0, 62.0, 83.2, 60.7),
+                                    Camera(160, 128, 80.0, 82.0, 83.2, 60.7, model="equidistant")])
+def test_rendered_depth_of_a_straight_tube_is_analytic(camera):
+    """Camera on the axis of an open tube looking along it: the ray through pixel (u, v) at
+    (a, b) = ((u - cx) / fx, (v - cy) / fy) meets the wall at z-depth R / r with r = |(a, b)|
+    through a pinhole, or at R / tan r through an equidistant fisheye (r its angle off the
+    axis); or it leaves the tube."""
+    tube, renderer = tube_renderer(camera)
     start = 3.0
     pose = np.eye(4)
     pose[2, 3] = start
@@ -286,7 +401,7 @@ def test_rendered_depth_of_a_straight_tube_is_analytic():
     assert rgb.shape == (128, 160, 3) and rgb.dtype == np.uint8
     u, v = np.meshgrid(np.arange(160), np.arange(128))
     r = np.hypot((u - camera.cx) / camera.fx, (v - camera.cy) / camera.fy)
-    expected = tube.radius / r
+    expected = tube.radius / (np.tan(r) if camera.model == "equidistant" else r)
     # The mesh is the inscribed 256-gon: its wall is between R cos(π/S) and R from the axis.
     # Float32 ray casting adds ~1e-6 relative.
     rel = 1 - np.cos(np.pi / tube.segments) + 1e-5
@@ -304,3 +419,36 @@ def test_rendered_depth_of_a_straight_tube_is_analytic():
     assert dark.sum() > 100
     assert rgb[dark].max() <= 5 * noise
     assert rgb[dark].mean() == pytest.approx(noise / np.sqrt(2 * np.pi), abs=0.5)
+
+
+def test_a_fisheye_frame_resampled_to_its_pinhole_twin_is_the_twins_frame():
+    """hybrid.lens: the pinhole twin sees the width's angle of the fisheye; the fisheye's
+    rendering of the tube resampled to the twin is the twin's own rendering, wherever the
+    fisheye reaches (all of the middle row; not the top and bottom middle, which the twin
+    sees at wider angles than the fisheye)."""
+    fisheye = Camera(160, 128, 80.0, 82.0, 79.5, 63.5, model="equidistant")
+    twin = pinhole_twin(fisheye)
+    assert twin.model == "pinhole" and pinhole_twin(twin) == twin
+    assert twin.hfov_deg == pytest.approx(fisheye.hfov_deg)
+    assert (twin.cx, twin.cy, twin.fy / twin.fx) == pytest.approx((79.5, 63.5, 82.0 / 80.0))
+    # a lens wider than a pinhole can see across is resampled to the widest one asked for
+    wide = equidistant(200.0, 160, 128)
+    assert (wide.hfov_deg, wide.fx, wide.cx, wide.cy) == pytest.approx(
+        (200.0, 80 / np.radians(100), 79.5, 63.5))
+    assert pinhole_twin(wide, widest_deg=130.0).hfov_deg == pytest.approx(130.0)
+    assert pinhole_twin(fisheye, widest_deg=130.0) == twin  # narrower than that: its twin
+    with pytest.raises(InputError, match="a pinhole sees less than 180 degrees"):
+        pinhole_twin(wide)
+    pose = np.eye(4)
+    pose[2, 3] = 3.0
+    depth = {camera.model: tube_renderer(camera)[1].render(pose, np.random.default_rng(0))[1]
+             for camera in (fisheye, twin)}
+    maps = resampling_maps(fisheye, twin)
+    reach = resample(np.ones((128, 160), np.uint8), maps, cv2.INTER_NEAREST) > 0
+    resampled = resample(depth["equidistant"], maps)
+    assert reach[64].all() and not reach[0, 80] and not reach[-1, 80] and reach.mean() > 0.8
+    # Two pixels from the open end's rim and the reach's edge, where the interpolation
+    # mixes wall and nothing: a tenth of a per cent, the 256-gon's facets against a line.
+    wall = binary_erosion(reach & (depth["pinhole"] > 0), iterations=2)
+    assert wall.mean() > 0.6
+    np.testing.assert_allclose(resampled[wall], depth["pinhole"][wall], rtol=1e-3)

@@ -47,9 +47,7 @@ class ColonRenderer:
                               v[crosses])
         # Per-triangle corner attributes: texel row, texel column, normal (T, 3, 5).
         self._corners = np.concatenate([uv * TEXELS_PER_CM, normals], axis=-1).astype(np.float32)
-        u, w = np.meshgrid(np.arange(camera.width), np.arange(camera.height))
-        self._rays_cam = np.stack([(u - camera.cx) / camera.fx, (w - camera.cy) / camera.fy,
-                                   np.ones(u.shape)], axis=-1).astype(np.float32)
+        self._rays_cam = camera.pixel_rays().astype(np.float32)
         self._ray_len = np.linalg.norm(self._rays_cam, axis=-1)  # the same in any orientation
         self._vignette = vignette(camera.height, camera.width, style.vignetting)[..., None]
 

@@ -63,6 +63,11 @@ class SimConfig:
     procedure i of this seed gets (same config), and everything else stays its own seed's:
     datasets of two styles can then share their cameras, so that style says nothing about
     the field of view (docs/depth.md, "Cameras shared by the styles")."""
+    lens: str | None = None
+    """None: pinhole cameras. 'equidistant': fisheye lenses, r = f θ (hybrid.types.Camera),
+    with the field of view across the image width drawn as for the pinhole ones, so that
+    their diagonal one is 115-166° for the default range (real endoscopes': 140-170°).
+    Everything else is the procedure through a pinhole lens (`c2d2 simulate --fisheye`)."""
     corner_cut: tuple[float, float] | None = None
     """The endoscope's image region. None: the whole image. (lo, hi): an octagon, the image
     with its corners cut off along 45° lines whose legs are a fraction drawn in [lo, hi] of
@@ -89,6 +94,8 @@ class SimConfig:
                              f"the rectum)")
         if self.trajectory.max_frames is not None and self.trajectory.max_frames < 1:
             raise ValueError("max_frames must be at least 1")
+        if self.lens not in (None, "equidistant"):
+            raise ValueError(f"lens must be None (pinhole) or 'equidistant', got {self.lens!r}")
         if self.corner_cut is not None and not 0 <= self.corner_cut[0] <= self.corner_cut[1] < 0.5:
             raise ValueError(f"corner_cut must be (lo, hi) with 0 <= lo <= hi < 0.5 of the "
                              f"shorter side, got {self.corner_cut}")
@@ -109,14 +116,16 @@ def procedure_name(index: int) -> str:
 
 
 def draw_camera(config: SimConfig, rng: np.random.Generator) -> Camera:
-    """Per-procedure pinhole intrinsics: a different endoscope each time."""
+    """Per-procedure intrinsics: a different endoscope each time (the same draws with either
+    lens)."""
     height, width = PRESET_IMAGE_SIZE[config.preset]
-    fx = (width / 2) / np.tan(np.radians(rng.uniform(*config.hfov_deg)) / 2)
+    half_angle = np.radians(rng.uniform(*config.hfov_deg)) / 2
+    fx = (width / 2) / (half_angle if config.lens == "equidistant" else np.tan(half_angle))
     fy = fx * (1 + rng.uniform(-config.aspect_jitter, config.aspect_jitter))
     cx = (width - 1) / 2 + rng.uniform(-1, 1) * config.principal_jitter * width
     cy = (height - 1) / 2 + rng.uniform(-1, 1) * config.principal_jitter * height
     return Camera(width, height, float(fx), float(fy), float(cx), float(cy),
-                  fps=config.trajectory.fps)
+                  fps=config.trajectory.fps, model=config.lens or "pinhole")
 
 
 def octagon_region(height: int, width: int, cut_px: float) -> np.ndarray:

@@ -1,0 +1,54 @@
+"""Frames of a fisheye lens resampled to a pinhole camera, the camera every stage assumes."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import cv2
+import numpy as np
+
+from hybrid.types import Camera, InputError
+
+WIDEST_DEG = 130.0
+"""The widest angle across the width of the pinhole a fisheye video is resampled to: the
+widest the simulator draws (`SimConfig.hfov_deg`), so that the networks read a camera like
+those they were trained on. A lens wider than that loses its edges."""
+
+
+def equidistant(fov_deg: float, width: int, height: int) -> Camera:
+    """The equidistant fisheye camera of a width x height image that sees fov_deg across its
+    width, square pixels, its principal point at the centre."""
+    if not 0 < fov_deg < 360:
+        raise InputError(f"a fisheye's field of view must lie between 0 and 360 degrees, got "
+                         f"{fov_deg}")
+    f = (width / 2) / np.radians(fov_deg / 2)
+    return Camera(width, height, f, f, (width - 1) / 2, (height - 1) / 2, model="equidistant")
+
+
+def pinhole_twin(camera: Camera, widest_deg: float | None = None) -> Camera:
+    """The pinhole camera of the same image size, principal point and aspect that sees the
+    same angle across the image width as `camera`, or widest_deg where that is narrower
+    (itself for a pinhole)."""
+    if camera.model == "pinhole":
+        return camera
+    angle = camera.hfov_deg if widest_deg is None else min(camera.hfov_deg, widest_deg)
+    if not 0 < angle < 180:
+        raise InputError(f"a pinhole sees less than 180 degrees across, not {angle:g}: give "
+                         f"the widest one to resample {camera} to")
+    fx = (camera.width / 2) / np.tan(np.radians(angle) / 2)
+    return replace(camera, fx=float(fx), fy=float(fx * camera.fy / camera.fx), model="pinhole")
+
+
+def resampling_maps(source: Camera, target: Camera) -> tuple[np.ndarray, np.ndarray]:
+    """cv2.remap's (H, W) float32 maps: where in an image of `source` each pixel of `target`
+    (a camera at the same place, looking the same way) finds its ray."""
+    u, v, _ = source.project(target.pixel_rays().reshape(-1, 3))
+    shape = (target.height, target.width)
+    return u.reshape(shape).astype(np.float32), v.reshape(shape).astype(np.float32)
+
+
+def resample(image: np.ndarray, maps: tuple[np.ndarray, np.ndarray],
+             interpolation: int = cv2.INTER_LINEAR) -> np.ndarray:
+    """`image` seen through the target camera of `maps`; black where the source does not
+    reach."""
+    return cv2.remap(image, *maps, interpolation, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
