@@ -17,7 +17,6 @@ import shutil
 from pathlib import Path
 
 import cv2
-import numpy as np
 from tqdm import tqdm
 
 from hybrid.dataset import (
@@ -28,7 +27,7 @@ from hybrid.dataset import (
     write_region,
     write_rgb,
 )
-from hybrid.lens import pinhole_twin, resample, resampling_maps
+from hybrid.lens import pinhole_twin, resample, resample_mask, resampling_maps
 
 
 def main() -> None:
@@ -46,7 +45,7 @@ def main() -> None:
         (work / "depth").mkdir()
         target = pinhole_twin(proc.camera)
         maps = resampling_maps(proc.camera, target)
-        region = resample(proc.region.astype(np.uint8), maps, cv2.INTER_NEAREST) > 0
+        region = resample_mask(proc.region, maps)
         for i in range(proc.num_frames):
             rgb = resample(proc.rgb(i), maps)
             rgb[~region] = 0

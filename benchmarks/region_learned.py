@@ -5,11 +5,12 @@ whole through a pinhole.
 --runs holds the `c2d2 eval` work folders of procedures simulated with `--octagon` (or
 fisheye ones resampled to their pinhole twins by benchmarks/fisheye_to_pinhole.py), --twins
 those of the same procedures without it (the same seeds: inside the region the frames are
-the same). For each variant the learned stage (and the report) of `c2d2 run` is redone in a
-scratch folder that links the run's files but takes the named ones from the twin's folder,
-or, for "no region", an all-white region.png (the coverage network then reads the depth
-network's values in the border instead of its fill of them from inside the region, a
-constant before 2026-11-30's fifty-fifth session: docs/coverage.md, "The image region").
+the same, or nearly: the resampled ones are interpolated). For each variant the learned
+stage (and the report) of `c2d2 run` is redone in a scratch folder that links the run's
+files but takes the named ones from the twin's folder, or, for "no region", an all-white
+region.png (the coverage network then reads the depth network's values in the border
+instead of its fill of them from inside the region, a constant before 2026-11-30's
+fifty-fifth session: docs/coverage.md, "The image region").
 Printed per variant: the segment MAE and bias of the learned coverage against the run's
 procedures' truth, and against the twin run's learned values.
 

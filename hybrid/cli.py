@@ -52,9 +52,10 @@ ViewSelfCalibrate = Annotated[bool, typer.Option(
     "branch keeps the intrinsics head's K.")]
 FisheyeFov = Annotated[float | None, typer.Option(
     "--fisheye-fov", help="The video comes through an equidistant fisheye lens that sees this "
-    "many degrees across the image's width (from the endoscope's specification): its frames "
-    "are resampled to a pinhole camera of the same angle (at most 130 degrees, the widest "
-    "the networks were trained on) before every stage.")]
+    "many degrees across its image region's width (from the endoscope's specification; the "
+    "principal point taken at the region's centre): its frames are resampled to a pinhole "
+    "camera of the same angle (at most 130 degrees, the widest the networks were trained on) "
+    "before every stage, and intrinsics.json gives that pinhole's K.")]
 PipelineDepth = Annotated[Path | None, typer.Option(help="Depth model (default: shipped).")]
 Insertion = Annotated[bool, typer.Option(
     help="The video is an insertion, not a withdrawal (the look-ahead band lies where the "

@@ -15,10 +15,10 @@ corrupt frames and goes on, or stops where a file is cut short) is kept with the
 decode and the loss is recorded (`decode_warning`).
 
 A video filmed through a fisheye lens of a known field of view (`fisheye_fov_deg`, across
-the image region's width, equidistant) has each frame resampled, after the crop and resize,
-to the pinhole camera that sees the same angle across the width (`hybrid.lens`; at most
-`WIDEST_DEG`), so that every later stage reads a pinhole video; the region becomes the part
-of it the lens shows.
+the image region's width, equidistant, centred) has each frame's crop resampled at the
+input's resolution, before the resize, to the pinhole camera that sees the same angle across
+the width (`hybrid.lens`; at most `WIDEST_DEG`), so that every later stage reads a pinhole
+video; the region becomes the part of it the lens shows, and the frames are black outside.
 """
 
 from __future__ import annotations
@@ -32,7 +32,7 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
-from hybrid.lens import WIDEST_DEG, equidistant, pinhole_twin, resample, resampling_maps
+from hybrid.lens import WIDEST_DEG, equidistant, pinhole_twin, resampling_maps
 from hybrid.npyio import NpyWriter
 from hybrid.types import InputError
 from hybrid.workdir import write_json
@@ -120,13 +120,11 @@ def ingest(path: Path, size: tuple[int, int], frames_out: Path, region: np.ndarr
         except InputError as err:
             raise InputError(f"{path}: {err}") from err
     crop = Crop.of(region, shape, str(path))
-    small_region = crop.fit_region(region, size)
     to_pinhole = None
-    if fisheye_fov_deg is not None:
-        lens = equidistant(fisheye_fov_deg, crop.width, crop.height).resized(size[1], size[0])
+    if fisheye_fov_deg is not None:  # at the input's resolution, before the resize
+        lens = equidistant(fisheye_fov_deg, crop.width, crop.height)
         to_pinhole = resampling_maps(lens, pinhole_twin(lens, WIDEST_DEG))
-        small_region = resample(small_region.astype(np.uint8), to_pinhole,
-                                cv2.INTER_NEAREST) > 0
+    small_region = crop.fit_region(region, size, to_pinhole)
     # The Laplacian at the region's edge reads the step to the black border, also where the
     # region meets the frame's edge: keep it out.
     sharpness_region = cv2.erode(small_region.astype(np.uint8), np.ones((5, 5), np.uint8),
@@ -143,9 +141,9 @@ def ingest(path: Path, size: tuple[int, int], frames_out: Path, region: np.ndarr
                                            disable=not progress)):
             if index == count:
                 break
-            small = crop.fit(frame, size, cv2.INTER_AREA)
-            if to_pinhole is not None:
-                small = resample(small, to_pinhole)
+            small = crop.fit(frame, size, cv2.INTER_AREA, to_pinhole)
+            if to_pinhole is not None:  # its edge was continued beyond the lens's reach
+                small[~small_region] = 0
             stack[index:index + 1] = small[None]
             grey = cv2.cvtColor(small, cv2.COLOR_RGB2GRAY)
             inside = grey[small_region]

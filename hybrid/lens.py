@@ -49,6 +49,14 @@ def resampling_maps(source: Camera, target: Camera) -> tuple[np.ndarray, np.ndar
 
 def resample(image: np.ndarray, maps: tuple[np.ndarray, np.ndarray],
              interpolation: int = cv2.INTER_LINEAR) -> np.ndarray:
-    """`image` seen through the target camera of `maps`; black where the source does not
-    reach."""
-    return cv2.remap(image, *maps, interpolation, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+    """`image` seen through the target camera of `maps`. Where the source does not reach, its
+    edge is continued (so that no black bleeds into the pixels next to it): cut that part
+    off with `resample_mask`."""
+    return cv2.remap(image, *maps, interpolation, borderMode=cv2.BORDER_REPLICATE)
+
+
+def resample_mask(mask: np.ndarray, maps: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+    """A (H, W) bool mask of the source seen through the target camera of `maps` (nearest
+    pixel); False where the source does not reach."""
+    return cv2.remap(mask.astype(np.uint8), *maps, cv2.INTER_NEAREST,
+                     borderMode=cv2.BORDER_CONSTANT, borderValue=0) > 0

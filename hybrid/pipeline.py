@@ -245,8 +245,10 @@ class _Run:
         np.savez(self.path(W.RELATIVE + ".partial.npz"),
                  **{f"gap{g}": r for g, r in result.relative.items()})
         self.path(W.RELATIVE + ".partial.npz").replace(self.path(W.RELATIVE))
-        W.write_json(self.path(W.INTRINSICS), aggregate_intrinsics(
-            result.K_pairs, self.size, seq.crop, seq.fps))
+        intrinsics = aggregate_intrinsics(result.K_pairs, self.size, seq.crop, seq.fps)
+        if self.config.fisheye_fov_deg is not None:  # K is the resampled frames' pinhole's
+            intrinsics["resampled_from_fisheye_fov_deg"] = self.config.fisheye_fov_deg
+        W.write_json(self.path(W.INTRINSICS), intrinsics)
         depth.close()  # last: its presence marks the stage complete
 
     def self_calibration(self) -> None:

@@ -58,8 +58,8 @@ class Camera:
 
     @property
     def hfov_deg(self) -> float:
-        """Horizontal field of view in degrees (the angle across the image at the focal
-        length fx)."""
+        """Horizontal field of view in degrees: the angle across the image's width at the
+        focal length fx, through the camera's model."""
         half = self.width / (2 * self.fx)
         return float(np.degrees(2 * (half if self.model == "equidistant" else np.arctan(half))))
 
@@ -88,7 +88,8 @@ class Camera:
 
     def project(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Pixel coordinates u, v of (N, 3) points in camera coordinates, and whether each is
-        in front of the camera (z > 0); u, v are meaningless where it is not."""
+        in front of the camera (z > 0); behind a pinhole u, v mean nothing (an equidistant
+        lens images those at more than 90° from its axis)."""
         x, y, z = points[:, 0], points[:, 1], points[:, 2]
         in_front = z > 1e-6
         zs = np.where(in_front, z, 1.0)

@@ -65,7 +65,9 @@ def evaluate_sequence(model: DepthModel, seq: FrameSequence, depth_frames: int =
                       trajectory_frames: int = 150, K: np.ndarray | None = None) -> dict:
     """Metrics of one simulated procedure (seq must carry its true camera and depth). K (3, 3,
     at the network's size) is scored in place of the intrinsics head's median over all the
-    consecutive pairs; the trajectory is scored over the first `trajectory_frames`."""
+    consecutive pairs; the trajectory is scored over the first `trajectory_frames`. For a
+    fisheye procedure (`c2d2 simulate --fisheye`) the true K is its lens's, whose f is the
+    magnification at the image centre (1.3-1.9 times the pinhole twin's: hybrid.lens)."""
     if seq.camera is None or seq.poses is None:
         raise InputError(f"{seq.name}: no ground truth; eval-depth needs simulated procedures")
     if seq.num_frames < 3:

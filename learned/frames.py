@@ -25,6 +25,7 @@ import cv2
 import numpy as np
 from scipy.ndimage import distance_transform_edt
 
+from hybrid.lens import resample, resample_mask
 from hybrid.types import Camera, InputError
 
 log = logging.getLogger(__name__)
@@ -57,16 +58,25 @@ class Crop:
         return cls(int(xs.min()), int(ys.min()), int(xs.max() - xs.min() + 1),
                    int(ys.max() - ys.min() + 1), region.shape[1], region.shape[0])
 
-    def fit(self, image: np.ndarray, size: tuple[int, int], interpolation: int) -> np.ndarray:
-        """An input-sized image cut to the box and resized to size (H, W)."""
-        cut = image[self.y0:self.y0 + self.height, self.x0:self.x0 + self.width]
+    def cut(self, image: np.ndarray) -> np.ndarray:
+        """An input-sized image cut to the box."""
+        return image[self.y0:self.y0 + self.height, self.x0:self.x0 + self.width]
+
+    def fit(self, image: np.ndarray, size: tuple[int, int], interpolation: int,
+            lens: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
+        """An input-sized image cut to the box, resampled by `lens` (hybrid.lens maps of the
+        box's size, for a fisheye video) when given, and resized to size (H, W)."""
+        cut = self.cut(image) if lens is None else resample(self.cut(image), lens)
         return cv2.resize(cut, (size[1], size[0]), interpolation=interpolation)
 
-    def fit_region(self, region: np.ndarray, size: tuple[int, int]) -> np.ndarray:
-        """The image region cut and resized like the frames, nearest by pixel centres (plain
-        INTER_NEAREST samples the top-left of each cell, which moves the region by up to a
-        pixel against the INTER_AREA frames)."""
-        return self.fit(region.astype(np.uint8), size, cv2.INTER_NEAREST_EXACT).astype(bool)
+    def fit_region(self, region: np.ndarray, size: tuple[int, int],
+                   lens: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
+        """The image region cut, resampled and resized like the frames, nearest by pixel
+        centres (plain INTER_NEAREST samples the top-left of each cell, which moves the region
+        by up to a pixel against the INTER_AREA frames)."""
+        cut = self.cut(region) if lens is None else resample_mask(self.cut(region), lens)
+        return cv2.resize(cut.astype(np.uint8), (size[1], size[0]),
+                          interpolation=cv2.INTER_NEAREST_EXACT).astype(bool)
 
     def camera_to_input(self, camera: Camera) -> Camera:
         """Intrinsics of the network-sized crop expressed in the input's pixels."""

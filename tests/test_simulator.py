@@ -7,7 +7,6 @@ import shutil
 from dataclasses import replace
 from pathlib import Path
 
-import cv2
 import numpy as np
 import pytest
 from conftest import make_cylinder
@@ -15,7 +14,7 @@ from scipy.ndimage import binary_dilation, binary_erosion
 
 from hybrid.coverage import Lumen, VisibilityOracle, compute_coverage
 from hybrid.dataset import Procedure, window_labels_path
-from hybrid.lens import equidistant, pinhole_twin, resample, resampling_maps
+from hybrid.lens import equidistant, pinhole_twin, resample, resample_mask, resampling_maps
 from hybrid.sim.appearance import TEXELS_PER_CM, get_style
 from hybrid.sim.colon import Colon, ColonConfig, make_colon
 from hybrid.sim.render import ColonRenderer
@@ -444,8 +443,11 @@ def test_a_fisheye_frame_resampled_to_its_pinhole_twin_is_the_twins_frame():
     depth = {camera.model: tube_renderer(camera)[1].render(pose, np.random.default_rng(0))[1]
              for camera in (fisheye, twin)}
     maps = resampling_maps(fisheye, twin)
-    reach = resample(np.ones((128, 160), np.uint8), maps, cv2.INTER_NEAREST) > 0
+    reach = resample_mask(np.ones((128, 160), bool), maps)
     resampled = resample(depth["equidistant"], maps)
+    # no black bleeds in at the lens's reach
+    grey = resample(np.full((128, 160, 3), 200, np.uint8), maps)
+    assert (grey[reach] == 200).all()
     assert reach[64].all() and not reach[0, 80] and not reach[-1, 80] and reach.mean() > 0.8
     # Two pixels from the open end's rim and the reach's edge, where the interpolation
     # mixes wall and nothing: a tenth of a per cent, the 256-gon's facets against a line.
