@@ -19,6 +19,7 @@ the image region's width, equidistant, centred) has each frame's crop resampled 
 input's resolution, before the resize, to the pinhole camera that sees the same angle across
 the width (`hybrid.lens`; at most `WIDEST_DEG`), so that every later stage reads a pinhole
 video; the region becomes the part of it the lens shows, and the frames are black outside.
+The quality flags are read on the frames as recorded (resampling blurs what it enlarges).
 """
 
 from __future__ import annotations
@@ -120,11 +121,12 @@ def ingest(path: Path, size: tuple[int, int], frames_out: Path, region: np.ndarr
         except InputError as err:
             raise InputError(f"{path}: {err}") from err
     crop = Crop.of(region, shape, str(path))
-    to_pinhole = None
+    small_region = crop.fit_region(region, size)  # of the frames as recorded: their flags
+    to_pinhole, written_region = None, small_region
     if fisheye_fov_deg is not None:  # at the input's resolution, before the resize
         lens = equidistant(fisheye_fov_deg, crop.width, crop.height)
         to_pinhole = resampling_maps(lens, pinhole_twin(lens, WIDEST_DEG))
-    small_region = crop.fit_region(region, size, to_pinhole)
+        written_region = crop.fit_region(region, size, to_pinhole)
     # The Laplacian at the region's edge reads the step to the black border, also where the
     # region meets the frame's edge: keep it out.
     sharpness_region = cv2.erode(small_region.astype(np.uint8), np.ones((5, 5), np.uint8),
@@ -141,10 +143,13 @@ def ingest(path: Path, size: tuple[int, int], frames_out: Path, region: np.ndarr
                                            disable=not progress)):
             if index == count:
                 break
-            small = crop.fit(frame, size, cv2.INTER_AREA, to_pinhole)
-            if to_pinhole is not None:  # its edge was continued beyond the lens's reach
-                small[~small_region] = 0
-            stack[index:index + 1] = small[None]
+            small = crop.fit(frame, size, cv2.INTER_AREA)
+            if to_pinhole is None:
+                stack[index:index + 1] = small[None]
+            else:  # its edge was continued beyond the lens's reach
+                pinhole = crop.fit(frame, size, cv2.INTER_AREA, to_pinhole)
+                pinhole[~written_region] = 0
+                stack[index:index + 1] = pinhole[None]
             grey = cv2.cvtColor(small, cv2.COLOR_RGB2GRAY)
             inside = grey[small_region]
             dark.append(bool(inside.mean() < DARK_GREY))
@@ -168,7 +173,7 @@ def ingest(path: Path, size: tuple[int, int], frames_out: Path, region: np.ndarr
                    f"{(source.count_hint - count) / source.fps:.1f} s early")
     record = Ingested(source.name, source.fps, count, shape[1], shape[0], asdict(crop), dark,
                       bright, blurred, warning, fisheye_fov_deg)
-    return record, small_region
+    return record, written_region
 
 
 def _open(path: Path, fps: float | None, region: np.ndarray | None) -> _Source:

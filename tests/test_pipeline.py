@@ -892,7 +892,8 @@ def test_a_simulated_octagon_is_the_region_ingested_and_the_one_detected(sim_con
 def test_a_fisheye_video_is_ingested_as_its_pinhole_twin(sim_config, tmp_path):
     """--fisheye-fov: each frame of a simulated fisheye procedure (centred, square pixels)
     resampled to the pinhole that sees its width's angle, as benchmarks/fisheye_to_pinhole.py
-    does with the true lens; the region is where the lens reaches. The angle must be one."""
+    does with the true lens, and black where the lens does not reach (the region). The angle
+    must be one."""
     from hybrid.ingest import Ingested, ingest
     from hybrid.lens import WIDEST_DEG, pinhole_twin, resample, resample_mask, resampling_maps
     from hybrid.sim.simulate import SimConfig, simulate_procedure, with_overrides
@@ -915,8 +916,11 @@ def test_a_fisheye_video_is_ingested_as_its_pinhole_twin(sim_config, tmp_path):
         assert not frames[i][~region].any()
     record.save(tmp_path / "ingest.json")
     assert Ingested.load(tmp_path / "ingest.json").fisheye_fov_deg == camera.hfov_deg
-    _, plain = ingest(fisheye.path, region.shape, tmp_path / "plain.npy")
+    as_recorded, plain = ingest(fisheye.path, region.shape, tmp_path / "plain.npy")
     assert plain.all() and not np.array_equal(np.load(tmp_path / "plain.npy"), frames)
+    # the flags judge the frames as recorded
+    assert (record.dark, record.overexposed, record.blurred) == (
+        as_recorded.dark, as_recorded.overexposed, as_recorded.blurred)
     for bad in (0.0, 360.0):
         with pytest.raises(InputError, match="between 0 and 360 degrees"):
             RunConfig(fisheye_fov_deg=bad)
