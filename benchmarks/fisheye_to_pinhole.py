@@ -50,8 +50,9 @@ def main() -> None:
             rgb = resample(proc.rgb(i), maps)
             rgb[~region] = 0
             write_rgb(work / "rgb" / frame_name(i), rgb)
-            write_depth(work / "depth" / frame_name(i),
-                        resample(proc.depth(i), maps, cv2.INTER_NEAREST))
+            depth = resample(proc.depth(i), maps, cv2.INTER_NEAREST)
+            depth[~region] = 0  # no surface known there
+            write_depth(work / "depth" / frame_name(i), depth)
         write_region(work / REGION_FILE, region)
         target.save(work / "camera.json")
         for name in ("poses.npy", "colon.ply", "lumen.npy", "coverage.json"):
