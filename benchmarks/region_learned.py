@@ -31,7 +31,7 @@ import numpy as np
 from hybrid import workdir as W
 from hybrid.coverage import pair_key
 from hybrid.dataset import Procedure
-from hybrid.pipeline import Models, RunConfig, run_video
+from hybrid.pipeline import Models, RunConfig, made_with, run_video
 from learned.frames import NETWORK_INPUT
 
 VARIANTS = {"as run": (), "no region": ("region",), "full depth": (W.DEPTH,),
@@ -57,7 +57,10 @@ def learned_values(run: Path, twin: Path, source: Path, taken: tuple[str, ...],
             (work / W.REGION).unlink()
             shape = np.load(work / W.DEPTH, mmap_mode="r").shape[1:]
             W.write_png(work / W.REGION, np.full(shape, 255, np.uint8))
-        run_video(source, work, models=models, progress=False, echo=lambda _: None)
+        # the run's configuration: eval's default, with its fisheye angle (eval --known-lens)
+        lens = made_with(config["config"])["fisheye_fov_deg"]
+        run_video(source, work, RunConfig(fisheye_fov_deg=lens), models=models,
+                  progress=False, echo=lambda _: None)
         record = json.loads((work / W.LEARNED).read_text())
     return [s["coverage"] for s in record["segments"]]
 
