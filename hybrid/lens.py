@@ -15,12 +15,17 @@ widest the simulator draws (`SimConfig.hfov_deg`), so that the networks read a c
 those they were trained on. A lens wider than that loses its edges."""
 
 
-def equidistant(fov_deg: float, width: int, height: int) -> Camera:
-    """The equidistant fisheye camera of a width x height image that sees fov_deg across its
-    width, square pixels, its principal point at the centre."""
+def check_fisheye_fov(fov_deg: float) -> None:
+    """An InputError unless fov_deg is a fisheye's field of view, in (0, 360) degrees."""
     if not 0 < fov_deg < 360:
         raise InputError(f"a fisheye's field of view must lie between 0 and 360 degrees, got "
                          f"{fov_deg}")
+
+
+def equidistant(fov_deg: float, width: int, height: int) -> Camera:
+    """The equidistant fisheye camera of a width x height image that sees fov_deg across its
+    width, square pixels, its principal point at the centre."""
+    check_fisheye_fov(fov_deg)
     f = (width / 2) / np.radians(fov_deg / 2)
     return Camera(width, height, f, f, (width - 1) / 2, (height - 1) / 2, model="equidistant")
 

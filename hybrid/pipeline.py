@@ -42,6 +42,7 @@ from hybrid.coverage import DELTA_PAIRS_CM, Lumen
 from hybrid.crosscheck import cross_check
 from hybrid.geometric_coverage import GeometricConfig
 from hybrid.ingest import Ingested, ingest
+from hybrid.lens import check_fisheye_fov
 from hybrid.lumen_fit import FittedLumen
 from hybrid.npyio import NpyRows, NpyWriter
 from hybrid.reconstruction import ReconstructionConfig, reconstruct
@@ -119,9 +120,8 @@ class RunConfig:
         if not 0 < self.segment_seconds < math.inf:
             raise InputError(f"segments must last a positive, finite time, got "
                              f"{self.segment_seconds}")
-        if self.fisheye_fov_deg is not None and not 0 < self.fisheye_fov_deg < 360:
-            raise InputError(f"a fisheye's field of view must lie between 0 and 360 degrees, "
-                             f"got {self.fisheye_fov_deg}")
+        if self.fisheye_fov_deg is not None:
+            check_fisheye_fov(self.fisheye_fov_deg)
         if not (math.isfinite(self.geometric_weight) and self.geometric_weight >= 0):
             raise InputError(f"the geometric coverage's weight must be a finite number, 0 or "
                              f"more, got {self.geometric_weight}")
