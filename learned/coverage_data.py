@@ -17,6 +17,7 @@ written atomically.
 from __future__ import annotations
 
 import functools
+import hashlib
 import os
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -29,7 +30,7 @@ from hybrid.dataset import Procedure, window_labels_path
 from hybrid.types import InputError
 from learned.config import CoverageConfig
 from learned.coverage_nets import normalise_depth, region_medians, relative_scale
-from learned.frames import FrameSequence, open_sequence
+from learned.frames import NETWORK_INPUT, FrameSequence, open_sequence
 from learned.infer import DepthOutput, infer_sequence
 from learned.model import DepthModel
 from learned.train import input_name
@@ -67,6 +68,11 @@ class ProcedureSamples:
         return np.concatenate([self.travel, self.view, self.scale], axis=1)
 
 
+_BORDER_TAG = hashlib.sha256(NETWORK_INPUT.encode()).hexdigest()[:8]
+"""How the networks read an image region's border (`NETWORK_INPUT`), in a bordered procedure's
+cache names: caches made while they read it otherwise are not taken."""
+
+
 def procedure_samples(path: Path, config: CoverageConfig, depth_model: DepthModel | None,
                       depth_tag: str, progress: bool = False,
                       frames_only: bool = False) -> ProcedureSamples:
@@ -99,10 +105,13 @@ def procedure_samples(path: Path, config: CoverageConfig, depth_model: DepthMode
     cache = proc.path / "cache"
     size = f"{config.height}x{config.width}" + ("" if config.median_normalise else "-log")
     predicted = config.input_depth != "true"
-    inputs_path = cache / f"input-{depth_tag if predicted else 'true'}-{size}.npy"
-    medians_path = cache / f"medians-{depth_tag if predicted else 'true'}.npy"
-    relative_path = cache / f"relative-{depth_tag}-{gap}.npy"
-    view_path = cache / f"view-{depth_tag}.npy"
+    # A bordered procedure's caches also name how the networks read the border, which changed
+    border = "" if proc.region.all() else f"-border{_BORDER_TAG}"
+    depth_name = (depth_tag if predicted else "true") + border
+    inputs_path = cache / f"input-{depth_name}-{size}.npy"
+    medians_path = cache / f"medians-{depth_name}.npy"
+    relative_path = cache / f"relative-{depth_tag}{border}-{gap}.npy"
+    view_path = cache / f"view-{depth_tag}{border}.npy"
     # One pass of the depth model for whichever of its caches are missing: the travel's pairs,
     # and consecutive pairs for the view (their median K, as `c2d2 run`'s intrinsics.json).
     missing_depth = predicted and not (inputs_path.is_file() and (

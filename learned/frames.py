@@ -85,9 +85,11 @@ class Crop:
                       full.cx + self.x0, full.cy + self.y0, camera.fps)
 
 
-NETWORK_INPUT = "border filled from the nearest pixels inside"
-"""How the networks read a frame's border (`FrameSequence.network_frame`), as work folders
-record it: one made while they read it black is not resumed on a bordered video."""
+NETWORK_INPUT = ("frames' border filled from the nearest pixels inside; the coverage input's "
+                 "border the depth network's own")
+"""How the networks read a frame's border (`FrameSequence.network_frame`, and
+`learned.coverage_nets.normalise_depth` for the coverage networks), as work folders record it:
+one made while they read it otherwise is not resumed on a bordered video."""
 
 
 def nearest_inside(region: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -102,12 +102,12 @@ def test_normalised_input_is_log_depth_over_its_median():
     depth = np.full((1, 8, 10), 2.0, np.float32)
     depth[0, :, 5:] = 8.0
     region = np.ones((8, 10), bool)
-    region[0, 0] = False  # border pixel: depth there is ignored
+    region[0, 0] = False  # border pixel: its depth is not in the median
     depth[0, 0, 0] = 1e6
     out = normalise_depth(depth, region, (8, 10))
     median = np.median(depth[0][region])
     assert out.shape == (1, 1, 8, 10)
-    assert out[0, 0, 0, 0] == pytest.approx(np.log(2.0 / median))  # its nearest inside
+    assert out[0, 0, 0, 0] == pytest.approx(np.log(1e6 / median))  # its own value
     assert np.allclose(out[0, 0, 4, :5], np.log(2.0 / median))
     assert np.allclose(out[0, 0, 4, 5:], np.log(8.0 / median))
     # Scale invariance: depth known up to scale gives the same input.
@@ -119,28 +119,22 @@ def test_normalised_input_is_log_depth_over_its_median():
                        own + np.log(7.5), atol=1e-6)
 
 
-def test_outside_the_region_the_input_is_that_of_the_nearest_pixel_inside():
-    """Each pixel outside the region (here the image's corners cut off) takes the value of
-    the inside pixel nearest to it; inside, and for a region of the whole image, the input is
-    log(depth / median) exactly."""
+def test_outside_the_region_the_input_keeps_the_depth_over_the_median_inside():
+    """Outside the region (here the image's corners cut off) the input is the depth's own
+    log(depth / median) too, the median taken inside only; the region changes nothing but the
+    median."""
     from hybrid.sim.simulate import octagon_region
 
     rng = np.random.default_rng(3)
     depth = rng.uniform(0.5, 6.0, (2, 12, 16)).astype(np.float32)
     region = octagon_region(12, 16, 4)
-    out = normalise_depth(depth, region, (12, 16))[:, 0]
     median = np.median(depth[:, region], axis=1)[:, None, None]
-    expected = np.log(depth / median)
-    np.testing.assert_allclose(out[:, region], expected[:, region], rtol=1e-6)
-    inside = np.argwhere(region)
-    for row, column in np.argwhere(~region):
-        nearest = np.hypot(*(inside - (row, column)).T)
-        candidates = inside[nearest == nearest.min()]
-        assert any(np.allclose(out[:, row, column], expected[:, r, c], rtol=1e-6)
-                   for r, c in candidates), (row, column)
-    whole = np.ones_like(region)
-    np.testing.assert_array_equal(normalise_depth(depth, whole, (12, 16))[:, 0],
-                                  np.log(depth / np.median(depth, axis=(1, 2))[:, None, None]))
+    assert not np.allclose(median, np.median(depth, axis=(1, 2))[:, None, None])
+    np.testing.assert_allclose(normalise_depth(depth, region, (12, 16))[:, 0],
+                               np.log(depth / median), rtol=1e-6)
+    depth[1, 0, 0] = 0.0  # a corner's depth is read too: it must be positive
+    with pytest.raises(InputError, match=r"outside the image region in frames \[1\]"):
+        normalise_depth(depth, region, (12, 16))
 
 
 def test_powered_input_is_that_of_the_depth_raised_to_the_power():
@@ -848,6 +842,38 @@ def test_depth_scale_input_of_a_simulated_procedure(two_procedures):
     assert (path / "cache" / "medians-tiny.npy").is_file()
     again = procedure_samples(path, replace(config, input_depth="predicted"), None, "tiny")
     assert np.array_equal(again.scale, predicted.scale)
+
+
+def test_a_bordered_procedure_does_not_take_caches_of_another_border_reading(tmp_path,
+                                                                            two_procedures):
+    """A procedure with a border caches its inputs under a name telling how the networks
+    read the border; an input cached without it (by a c2d2 that read the border otherwise)
+    is not taken, while a whole-image procedure keeps its caches' names."""
+    import shutil
+
+    from hybrid.dataset import REGION_FILE, write_region
+    from hybrid.sim.simulate import octagon_region
+
+    torch.manual_seed(0)
+    depth_model = DepthModel(TINY).eval()
+    path = tmp_path / "proc_0000"
+    shutil.copytree(two_procedures / "proc_0000", path, ignore=shutil.ignore_patterns("cache"))
+    camera = Procedure.open(path).camera
+    write_region(path / REGION_FILE, octagon_region(camera.height, camera.width, 6))
+    size = f"{SMALL.height}x{SMALL.width}"
+    stale = path / "cache" / f"input-tiny-{size}.npy"
+    stale.parent.mkdir()
+    seq = open_sequence(path, (TINY.height, TINY.width))
+    np.save(stale, np.ones((seq.num_frames, 1, SMALL.height, SMALL.width), np.float16))
+    samples = procedure_samples(path, SMALL, depth_model, "tiny")
+    depth = infer_sequence(depth_model, seq, (), depth=True).depth
+    expected = normalise_depth(depth, seq.region, (SMALL.height, SMALL.width))
+    np.testing.assert_allclose(samples.inputs, expected, atol=2e-3)  # float16
+    assert np.abs(expected - 1).min() > 0.5  # so not the stale input
+    assert [p.name for p in (path / "cache").glob(f"input-tiny-border*-{size}.npy")]
+    whole = procedure_samples(two_procedures / "proc_0001", SMALL, depth_model, "tiny")
+    assert (two_procedures / "proc_0001" / "cache" / f"input-tiny-{size}.npy").is_file()
+    assert whole.inputs.shape[1:] == samples.inputs.shape[1:]
 
 
 def test_chained_travel_input_of_a_simulated_procedure(two_procedures):

@@ -43,6 +43,7 @@ from hybrid.pipeline import (
 )
 from hybrid.sim.simulate import SimConfig, simulate_procedure, with_overrides
 from hybrid.types import InputError
+from learned.frames import NETWORK_INPUT
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 
@@ -706,17 +707,21 @@ def test_cli_refuses_a_work_folder_of_another_video(pipeline_run, frames, tmp_pa
     assert snapshot(work) == kept
 
 
-def test_a_bordered_run_whose_networks_read_the_border_black_is_not_resumed(pipeline_run,
-                                                                           procedure, tmp_path):
-    """A work folder made before the networks read the border filled from inside (config.json
-    without network_input): refused, with nothing touched, where its region has a border and
-    its depth was computed (from black corners); else resumed, where nothing differs, and
-    then recorded as made with the fill (a whole image; a depth stage still to run)."""
+@pytest.mark.parametrize("before", [None, "border filled from the nearest pixels inside"])
+def test_a_bordered_run_whose_networks_read_the_border_otherwise_is_not_resumed(
+        pipeline_run, procedure, tmp_path, before):
+    """A work folder made before the networks read the border as now (config.json without
+    network_input: black; or the coverage input filled from inside, as the fifty-fifth
+    session's c2d2 recorded it): refused, with nothing touched, where its region has a border
+    and its depth was computed; else resumed, where nothing differs, and then recorded as made
+    as now (a whole image; a depth stage still to run)."""
     out, _ = pipeline_run
     work = tmp_path / "work"
     shutil.copytree(out, work)
     config = json.loads((work / W.CONFIG).read_text())
-    assert config.pop("network_input") == "border filled from the nearest pixels inside"
+    assert config.pop("network_input") == NETWORK_INPUT
+    if before is not None:
+        config["network_input"] = before
     region = cv2.imread(str(work / W.REGION), cv2.IMREAD_GRAYSCALE)
     region[:3, :3] = 0
     cv2.imwrite(str(work / W.REGION), region)
@@ -724,17 +729,17 @@ def test_a_bordered_run_whose_networks_read_the_border_black_is_not_resumed(pipe
     kept = snapshot(work)
     message = assert_input_error(runner.invoke(app, ["run", str(procedure.path), "--out",
                                                      str(work)]), str(work))
-    assert "networks read the border around its image region black (now: border filled" \
-        in message
+    assert (f"networks read the border around its image region otherwise ({before or 'black'}; "
+            f"now: {NETWORK_INPUT})") in " ".join(message.split())
     assert snapshot(work) == kept
 
     def resumed_and_recorded() -> bool:
         (work / W.CONFIG).write_text(json.dumps(config))
         result = runner.invoke(app, ["run", str(procedure.path), "--out", str(work)])
         assert result.exit_code == 0, result.output
-        return "network_input" in json.loads((work / W.CONFIG).read_text())
+        return json.loads((work / W.CONFIG).read_text())["network_input"] == NETWORK_INPUT
 
-    (work / W.DEPTH).unlink()  # the depth stage still to run: it will fill the border
+    (work / W.DEPTH).unlink()  # the depth stage still to run: it will read the border as now
     assert resumed_and_recorded()
     shutil.copyfile(out / W.REGION, work / W.REGION)  # a whole image: nothing differs
     assert resumed_and_recorded()
