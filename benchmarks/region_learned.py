@@ -8,10 +8,10 @@ those of the same procedures without it (the same seeds: inside the region the f
 the same, or nearly: the resampled ones are interpolated). For each variant the learned
 stage (and the report) of `c2d2 run` is redone in a scratch folder that links the run's
 files but takes the named ones from the twin's folder, or, for "no region", an all-white
-region.png (the coverage network then reads the depth network's values in the border, as
-it has since 2026-11-30's fifty-seventh session, and each frame's median over the whole
-image; before, it read their fill from inside the region, and a constant before the
-fifty-fifth session: docs/coverage.md, "The image region").
+region.png. "no region" differs from "as run" only in taking each frame's median over the
+whole image; before 2026-11-30's fifty-seventh session "as run" read the depth filled from
+inside the region, and before the fifty-fifth a constant there (docs/coverage.md, "The image
+region").
 Printed per variant: the segment MAE and bias of the learned coverage against the run's
 procedures' truth, and against the twin run's learned values.
 

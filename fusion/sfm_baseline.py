@@ -29,6 +29,10 @@ CAMERA_MODEL = "SIMPLE_PINHOLE"
 learned branch's K. The principal point stays at the image centre (COLMAP's default: refining it
 from one sequence is ill-posed); the focal length is refined by bundle adjustment."""
 
+FISHEYE_MODEL = "SIMPLE_RADIAL_FISHEYE"
+"""COLMAP's fisheye of one focal length f and one coefficient k: a ray θ off the axis lands
+f (θ + k θ³) from the principal point (k = 0: the equidistant lens of `hybrid.types.Camera`)."""
+
 
 class NoModel(InputError):
     """The mapper built no model from the frames (too little texture or motion)."""
@@ -56,6 +60,9 @@ class SfmResult:
     """Per input frame, (M, 3) float32: the pixel (x, y, OpenCV centres) and the depth along
     the camera's axis of each 3D point of the model the frame observes, in the model's unit
     (sparse depth, up to the model's scale); (0, 3) for frames not registered."""
+    camera_params: np.ndarray
+    """The camera model's parameters as COLMAP orders them (SIMPLE_PINHOLE: f, cx, cy;
+    SIMPLE_RADIAL_FISHEYE: f, cx, cy, k), in COLMAP's pixels (centres at +0.5)."""
 
 
 def mapping_options() -> pycolmap.IncrementalPipelineOptions:
@@ -81,7 +88,8 @@ def verification_options() -> pycolmap.TwoViewGeometryOptions:
 
 def run_sfm(images: list[np.ndarray], mask: np.ndarray | None, work_dir: Path,
             name: str = "frames", frame_masks: list[np.ndarray] | None = None,
-            initial_field_of_view: float | None = None) -> SfmResult:
+            initial_field_of_view: float | None = None,
+            camera_model: str = CAMERA_MODEL) -> SfmResult:
     """Structure from motion on consecutive RGB uint8 frames (H, W, 3) of one camera.
 
     mask: (H, W) bool, True where the image shows the scene (False on a black border), or None.
@@ -90,6 +98,9 @@ def run_sfm(images: list[np.ndarray], mask: np.ndarray | None, work_dir: Path,
     initial_field_of_view: degrees across the frames' longer side of the camera the mapper
     starts from (bundle adjustment then refines its f), or None for COLMAP's default start,
     f = 1.2 x the longer side (45 degrees).
+    camera_model: `CAMERA_MODEL`, or `FISHEYE_MODEL` (K's fx = fy = its f; k only in
+    `SfmResult.camera_params`), which needs initial_field_of_view, through an equidistant
+    lens, as a prior: COLMAP cannot verify fisheye pairs without one.
     work_dir is emptied of a previous run's database and model.
     """
     _check_images(images, mask, name)
@@ -101,6 +112,12 @@ def run_sfm(images: list[np.ndarray], mask: np.ndarray | None, work_dir: Path,
     if initial_field_of_view is not None and not 0 < initial_field_of_view < 180:
         raise InputError(f"{name}: initial_field_of_view must lie in (0, 180) degrees, "
                          f"got {initial_field_of_view}")
+    if camera_model not in (CAMERA_MODEL, FISHEYE_MODEL):
+        raise InputError(f"{name}: camera_model must be {CAMERA_MODEL} or {FISHEYE_MODEL}, "
+                         f"got {camera_model}")
+    if camera_model == FISHEYE_MODEL and initial_field_of_view is None:
+        raise InputError(f"{name}: {FISHEYE_MODEL} needs an initial_field_of_view, the prior "
+                         f"without which COLMAP verifies no fisheye pair")
     work_dir = Path(work_dir)
     image_dir, model_dir = work_dir / "images", work_dir / "sparse"
     mask_dir = work_dir / "masks"
@@ -114,8 +131,12 @@ def run_sfm(images: list[np.ndarray], mask: np.ndarray | None, work_dir: Path,
     for file, image in zip(names, images, strict=True):
         cv2.imwrite(str(image_dir / file), cv2.cvtColor(image, cv2.COLOR_RGB2BGR))
     reader = pycolmap.ImageReaderOptions()
-    reader.camera_model = CAMERA_MODEL
-    if initial_field_of_view is not None:
+    reader.camera_model = camera_model
+    if camera_model == FISHEYE_MODEL:  # a prior f (COLMAP's pixel centres at +0.5)
+        height, width = np.shape(images[0])[:2]
+        f = max(height, width) / np.radians(initial_field_of_view)
+        reader.camera_params = f"{f},{width / 2},{height / 2},0"
+    elif initial_field_of_view is not None:
         reader.default_focal_length_factor = 0.5 / np.tan(np.radians(initial_field_of_view) / 2)
     if mask is not None:
         reader.camera_mask_path = str(work_dir / "mask.png")
@@ -191,7 +212,7 @@ def _result(model: pycolmap.Reconstruction, names: list[str], seconds: float,
              registered.sum(), len(names), K[0, 0], seconds)
     return SfmResult(K, poses, registered, seconds, float(model.compute_mean_reprojection_error()),
                      int(model.num_points3D()), float(model.compute_mean_track_length()),
-                     observations)
+                     observations, np.array(camera.params, dtype=np.float64))
 
 
 def _observed(model: pycolmap.Reconstruction, image: pycolmap.Image) -> np.ndarray:

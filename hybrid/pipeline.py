@@ -671,9 +671,9 @@ def _prepare(out: Path, config: RunConfig, source: Path, models: Models,
                     and not read_region(out).all()):
                 before = previous.get("network_input", "black")
                 raise InputError(f"{out} holds a run by an earlier c2d2 whose networks read "
-                                 f"the border around its image region otherwise ({before}; "
-                                 f"now: {NETWORK_INPUT}); use another --out or delete it to "
-                                 f"start again")
+                                 f"the border around its image region otherwise (\"{before}\"; "
+                                 f"now \"{NETWORK_INPUT}\"); use another --out or delete it "
+                                 f"to start again")
             W.write_json(saved, previous | {"network_input": NETWORK_INPUT})  # nothing differs
     elif source.exists():
         W.write_json(saved, resolved)

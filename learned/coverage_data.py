@@ -105,7 +105,8 @@ def procedure_samples(path: Path, config: CoverageConfig, depth_model: DepthMode
     cache = proc.path / "cache"
     size = f"{config.height}x{config.width}" + ("" if config.median_normalise else "-log")
     predicted = config.input_depth != "true"
-    # A bordered procedure's caches also name how the networks read the border, which changed
+    # A bordered procedure's caches also name how the networks read the border (the depth
+    # network's frames since the fifty-fifth session, the coverage input since the fifty-seventh)
     border = "" if proc.region.all() else f"-border{_BORDER_TAG}"
     depth_name = (depth_tag if predicted else "true") + border
     inputs_path = cache / f"input-{depth_name}-{size}.npy"

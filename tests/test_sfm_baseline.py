@@ -6,9 +6,20 @@ from __future__ import annotations
 import numpy as np
 import pycolmap
 import pytest
-from tube_scene import FOCAL, FRAMES, MASK, K, depth, pose_at, render, wall_texture
+from tube_scene import (
+    FOCAL,
+    FRAMES,
+    HEIGHT,
+    MASK,
+    WIDTH,
+    K,
+    depth,
+    pose_at,
+    render,
+    wall_texture,
+)
 
-from fusion.sfm_baseline import run_sfm
+from fusion.sfm_baseline import FISHEYE_MODEL, run_sfm
 from hybrid.types import InputError
 from learned.metrics import trajectory_errors
 
@@ -94,3 +105,30 @@ def test_frame_masks_of_the_wrong_count_or_size_are_refused(frame_masks, tmp_pat
 def test_a_start_that_is_not_a_field_of_view_is_refused(degrees, tmp_path):
     with pytest.raises(InputError, match="initial_field_of_view"):
         run_sfm([np.zeros((8, 8, 3), np.uint8)] * 2, None, tmp_path, initial_field_of_view=degrees)
+
+
+@pytest.mark.parametrize("lens", ["equidistant", "pinhole"])
+def test_the_fisheye_model_tells_an_equidistant_lens_from_a_pinhole(lens, tmp_path):
+    """The tube filmed through an equidistant lens of f = 80 px (r = f θ) and through a
+    pinhole of the same f, each mapped with COLMAP's one-coefficient fisheye, r = f (θ + k θ³),
+    started from a 120-degree prior: the lens gives k near 0 and f near 80; the pinhole a k
+    well above 0 (tan θ = θ + θ³/3 + ..., so k = 1/3 at the same f over small angles)."""
+    poses = np.stack([pose_at(i) for i in range(FRAMES)])
+    texture = wall_texture()
+    result = run_sfm([render(p, texture, lens) for p in poses], MASK, tmp_path,
+                     initial_field_of_view=120, camera_model=FISHEYE_MODEL)
+    f, cx, cy, k = result.camera_params
+    assert result.registered.all()
+    assert (cx, cy) == (WIDTH / 2, HEIGHT / 2)  # COLMAP's pixel centres at +0.5
+    if lens == "equidistant":
+        assert abs(f - FOCAL) / FOCAL < 0.05 and abs(k) < 0.05
+    else:
+        assert k > 0.25
+
+
+def test_the_fisheye_model_needs_a_prior_and_other_models_are_refused(tmp_path):
+    images = [np.zeros((8, 8, 3), np.uint8)] * 2
+    for model, start, match in ((FISHEYE_MODEL, None, "needs an initial_field_of_view"),
+                                ("OPENCV", 90.0, "camera_model must be")):
+        with pytest.raises(InputError, match=match):
+            run_sfm(images, None, tmp_path, initial_field_of_view=start, camera_model=model)

@@ -1,14 +1,17 @@
 """An analytically rendered, textured tube seen through an endoscope-like disc mask.
 
 The camera moves forward along the axis of a cylinder of radius 2 cm with a little sideways
-wobble and yaw; the wall carries a blurred random texture in (angle, z). Used by the structure
-from motion tests.
+wobble and yaw; the wall carries a blurred random texture in (angle, z). Rendered through a
+pinhole, or an equidistant fisheye of the same focal length. Used by the structure from
+motion tests.
 """
 
 from __future__ import annotations
 
 import cv2
 import numpy as np
+
+from hybrid.types import Camera
 
 RADIUS, HEIGHT, WIDTH, FOCAL, FRAMES = 2.0, 128, 160, 80.0, 24
 K = np.array([[FOCAL, 0, (WIDTH - 1) / 2], [0, FOCAL, (HEIGHT - 1) / 2], [0, 0, 1]])
@@ -32,25 +35,26 @@ def pose_at(i: int) -> np.ndarray:
     return pose
 
 
-def _rays(pose: np.ndarray) -> np.ndarray:
-    """World directions of the pixels' rays, scaled to unit depth along the camera's axis."""
-    return np.stack([(_u - K[0, 2]) / FOCAL, (_v - K[1, 2]) / FOCAL, np.ones(_u.shape)],
-                    -1) @ pose[:3, :3].T
+def _rays(pose: np.ndarray, lens: str = "pinhole") -> np.ndarray:
+    """World directions of the pixels' rays through `lens` ('pinhole' or 'equidistant', of
+    focal length FOCAL at the image centre), scaled to unit depth along the camera's axis."""
+    camera = Camera(WIDTH, HEIGHT, FOCAL, FOCAL, K[0, 2], K[1, 2], model=lens)
+    return camera.pixel_rays() @ pose[:3, :3].T
 
 
-def depth(pose: np.ndarray) -> np.ndarray:
+def depth(pose: np.ndarray, lens: str = "pinhole") -> np.ndarray:
     """(HEIGHT, WIDTH) depth along the camera's axis of the wall, by ray-cylinder intersection."""
-    d, p = _rays(pose), pose[:3, 3]
+    d, p = _rays(pose, lens), pose[:3, 3]
     a = d[..., 0] ** 2 + d[..., 1] ** 2
     b = 2 * (p[0] * d[..., 0] + p[1] * d[..., 1])
     c = p[0] ** 2 + p[1] ** 2 - RADIUS**2
     return (-b + np.sqrt(b * b - 4 * a * c)) / (2 * np.maximum(a, 1e-12))
 
 
-def render(pose: np.ndarray, texture: np.ndarray) -> np.ndarray:
-    """RGB of the textured wall, darker with distance, masked."""
-    z = depth(pose)
-    hit = pose[:3, 3] + z[..., None] * _rays(pose)
+def render(pose: np.ndarray, texture: np.ndarray, lens: str = "pinhole") -> np.ndarray:
+    """RGB of the textured wall through `lens`, darker with distance, masked."""
+    z = depth(pose, lens)
+    hit = pose[:3, 3] + z[..., None] * _rays(pose, lens)
     size = len(texture)
     col = (np.arctan2(hit[..., 1], hit[..., 0]) + np.pi) / (2 * np.pi) * size
     row = hit[..., 2] / 12.0 * size

@@ -1,0 +1,121 @@
+"""Can structure from motion tell an endoscope's lens from its video? A probe for a
+calibration-free `--fisheye-fov`.
+
+Each stretch of frames (as the depth network sees them, at the self-calibration's stretches,
+contrast step and square pixels: `fusion.self_calibration`) is mapped by pycolmap with
+COLMAP's SIMPLE_RADIAL_FISHEYE camera, r = f (θ + k θ³) (k = 0: the equidistant lens of
+`c2d2 simulate --fisheye`; a pinhole, r = f tan θ, reads as k near 1/3 over small angles, more
+over wide ones). Printed per stretch: frames placed, f and k, the angle across the width they
+give, and the camera's true model and angle (camera.json); then per lens, over the stretches
+that placed at least half their frames, the median k and the angle's error.
+
+    python benchmarks/lens_from_sfm.py --data data/heldout-fisheye data/heldout \
+        --procedures 6 --stretches 3 --workers 2
+"""
+
+from __future__ import annotations
+
+import argparse
+import tempfile
+from concurrent.futures import ProcessPoolExecutor
+from multiprocessing import get_context
+from pathlib import Path
+
+import numpy as np
+
+from fusion.self_calibration import (
+    SelfCalibrationConfig,
+    SquarePixels,
+    contrast_enhanced,
+    stretch_starts,
+)
+from fusion.sfm_baseline import CAMERA_MODEL, FISHEYE_MODEL, NoModel, run_sfm
+from hybrid.dataset import list_procedures
+from learned.config import DEPTH_PRESETS
+from learned.frames import open_sequence
+
+_SIZE = (DEPTH_PRESETS["fast"].height, DEPTH_PRESETS["fast"].width)
+"""The frames' size: the shipped depth network's."""
+
+
+def width_angle(model: str, f: float, k: float, half_width: float) -> float:
+    """Degrees across a width of 2 * half_width pixels of a pinhole of focal length f, or of
+    the fisheye r = f (θ + k θ³): the smallest positive root θ of θ + k θ³ = half_width / f,
+    doubled (NaN without one)."""
+    if model == CAMERA_MODEL:
+        return float(np.degrees(2 * np.arctan(half_width / f)))
+    roots = np.roots([k, 0.0, 1.0, -half_width / f]) if k else np.array([half_width / f])
+    real = [r.real for r in roots if abs(r.imag) < 1e-9 and r.real > 0]
+    return float(np.degrees(2 * min(real))) if real else float("nan")
+
+
+def map_stretch(path: Path, start: int, length: int, model: str, start_fov: float) -> dict:
+    """One stretch of a procedure mapped with the COLMAP camera `model`; f in the frames' x
+    pixels."""
+    config = SelfCalibrationConfig(length=length)
+    seq = open_sequence(path, _SIZE)
+    square = SquarePixels(seq.size, seq.pixel_aspect)
+    ids = range(start, min(start + length, seq.num_frames))
+    images = [square(contrast_enhanced(seq.frame(i), config)) for i in ids]
+    row = {"procedure": str(path), "start": start, "placed": 0.0}
+    with tempfile.TemporaryDirectory() as work:
+        try:
+            sfm = run_sfm(images, square.mask(seq.region), Path(work), f"{path} {start}",
+                          initial_field_of_view=start_fov, camera_model=model)
+        except NoModel:
+            return row
+    f, k = sfm.camera_params[0], (sfm.camera_params[3] if len(sfm.camera_params) > 3 else 0.0)
+    row.update(placed=float(sfm.registered.mean()), f=float(f) * square.scale[0], k=float(k),
+               angle=width_angle(model, float(f), float(k), square.shape[1] / 2),
+               reprojection_error=sfm.reprojection_error)
+    return row
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--data", type=Path, nargs="*", default=[],
+                        help="folders of simulated procedures (their lens known)")
+    parser.add_argument("--inputs", type=Path, nargs="*", default=[],
+                        help="videos or image folders (their lens unknown)")
+    parser.add_argument("--procedures", type=int, default=6, help="the first N of each folder")
+    parser.add_argument("--stretches", type=int, default=3)
+    parser.add_argument("--length", type=int, default=120, help="frames per stretch")
+    parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--model", default=FISHEYE_MODEL, choices=[FISHEYE_MODEL, CAMERA_MODEL])
+    parser.add_argument("--initial-fov", type=float, default=120.0,
+                        help="degrees across the longer side the mapper's f starts from "
+                             "(through an equidistant lens for the fisheye model; a prior it "
+                             "needs)")
+    args = parser.parse_args()
+    truth = {str(proc.path): (proc.camera.model, proc.camera.hfov_deg)
+             for folder in args.data for proc in list_procedures(folder)[:args.procedures]}
+    layout = SelfCalibrationConfig(windows=args.stretches, length=args.length, min_agreeing=1)
+    jobs = []
+    for path in [*map(Path, truth), *args.inputs]:
+        count = open_sequence(path, _SIZE).num_frames
+        jobs += [(path, s, args.length, args.model, args.initial_fov)
+                 for s in stretch_starts(count, layout)]
+    with ProcessPoolExecutor(args.workers, get_context("spawn")) as pool:
+        rows = list(pool.map(map_stretch, *zip(*jobs, strict=True)))
+    by_lens: dict[str, list[tuple[float, float]]] = {}
+    for row in rows:
+        lens, angle = truth.get(row["procedure"], ("unknown", float("nan")))
+        known = f"true: {lens}, {angle:.1f} deg"
+        if "f" not in row:
+            print(f"{row['procedure']} {row['start']}: no model ({known})")
+            continue
+        print(f"{row['procedure']} {row['start']}: placed {row['placed']:.2f} f {row['f']:.1f} "
+              f"k {row['k']:+.3f} angle {row['angle']:.1f} ({known}) "
+              f"reprojection {row['reprojection_error']:.2f} px", flush=True)
+        if row["placed"] >= 0.5:
+            by_lens.setdefault(lens, []).append((row["k"], row["angle"] - angle))
+    for lens, values in by_lens.items():
+        k, error = np.array(values).T
+        angle = ("" if lens == "unknown" else f"; angle error median {np.median(error):+.1f}, "
+                 f"median absolute {np.median(np.abs(error)):.1f} deg")
+        print(f"{lens}: {len(k)} stretches placed; k median {np.median(k):+.3f} "
+              f"[{k.min():+.3f}, {k.max():+.3f}]{angle}")
+
+
+if __name__ == "__main__":
+    main()
