@@ -49,24 +49,20 @@ def width_angle(model: str, f: float, k: float, half_width: float) -> float:
     return float(np.degrees(2 * min(real))) if real else float("nan")
 
 
-def map_stretch(path: Path, start: int, length: int, model: str, start_fov: float) -> dict:
-    """One stretch of a procedure mapped with the COLMAP camera `model`; f in the frames' x
-    pixels."""
-    config = SelfCalibrationConfig(length=length)
-    seq = open_sequence(path, _SIZE)
-    square = SquarePixels(seq.size, seq.pixel_aspect)
-    ids = range(start, min(start + length, seq.num_frames))
-    images = [square(contrast_enhanced(seq.frame(i), config)) for i in ids]
-    row = {"procedure": str(path), "start": start, "placed": 0.0}
+def map_stretch(name: str, start: int, images: list[np.ndarray], mask: np.ndarray,
+                scale: float, model: str, start_fov: float) -> dict:
+    """One stretch's square-pixel frames mapped with the COLMAP camera `model`; `scale` takes
+    the mapper's pixels to the frames' x pixels, in which f is given."""
+    row = {"procedure": name, "start": start, "placed": 0.0}
     with tempfile.TemporaryDirectory() as work:
         try:
-            sfm = run_sfm(images, square.mask(seq.region), Path(work), f"{path} {start}",
+            sfm = run_sfm(images, mask, Path(work), f"{name} {start}",
                           initial_field_of_view=start_fov, camera_model=model)
         except NoModel:
             return row
     f, k = sfm.camera_params[0], (sfm.camera_params[3] if len(sfm.camera_params) > 3 else 0.0)
-    row.update(placed=float(sfm.registered.mean()), f=float(f) * square.scale[0], k=float(k),
-               angle=width_angle(model, float(f), float(k), square.shape[1] / 2),
+    row.update(placed=float(sfm.registered.mean()), f=float(f) * scale, k=float(k),
+               angle=width_angle(model, float(f), float(k), mask.shape[1] / 2),
                reprojection_error=sfm.reprojection_error)
     return row
 
@@ -90,13 +86,18 @@ def main() -> None:
     truth = {str(proc.path): (proc.camera.model, proc.camera.hfov_deg)
              for folder in args.data for proc in list_procedures(folder)[:args.procedures]}
     layout = SelfCalibrationConfig(windows=args.stretches, length=args.length, min_agreeing=1)
-    jobs = []
-    for path in [*map(Path, truth), *args.inputs]:
-        count = open_sequence(path, _SIZE).num_frames
-        jobs += [(path, s, args.length, args.model, args.initial_fov)
-                 for s in stretch_starts(count, layout)]
     with ProcessPoolExecutor(args.workers, get_context("spawn")) as pool:
-        rows = list(pool.map(map_stretch, *zip(*jobs, strict=True)))
+        jobs = []
+        for path in [*map(Path, truth), *args.inputs]:
+            seq = open_sequence(path, _SIZE)  # once: a video is decoded here
+            square = SquarePixels(seq.size, seq.pixel_aspect)
+            for start in stretch_starts(seq.num_frames, layout):
+                ids = range(start, min(start + args.length, seq.num_frames))
+                images = [square(contrast_enhanced(seq.frame(i), layout)) for i in ids]
+                jobs.append(pool.submit(map_stretch, str(path), start, images,
+                                        square.mask(seq.region), square.scale[0], args.model,
+                                        args.initial_fov))
+        rows = [job.result() for job in jobs]
     by_lens: dict[str, list[tuple[float, float]]] = {}
     for row in rows:
         lens, angle = truth.get(row["procedure"], ("unknown", float("nan")))
