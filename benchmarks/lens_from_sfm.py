@@ -27,6 +27,7 @@ from fusion.self_calibration import (
     SelfCalibrationConfig,
     SquarePixels,
     contrast_enhanced,
+    half_angle,
     stretch_starts,
 )
 from fusion.sfm_baseline import CAMERA_MODEL, FISHEYE_MODEL, NoModel, run_sfm
@@ -36,17 +37,6 @@ from learned.frames import open_sequence
 
 _SIZE = (DEPTH_PRESETS["fast"].height, DEPTH_PRESETS["fast"].width)
 """The frames' size: the shipped depth network's."""
-
-
-def width_angle(model: str, f: float, k: float, half_width: float) -> float:
-    """Degrees across a width of 2 * half_width pixels of a pinhole of focal length f, or of
-    the fisheye r = f (θ + k θ³): the smallest positive root θ of θ + k θ³ = half_width / f,
-    doubled (NaN without one)."""
-    if model == CAMERA_MODEL:
-        return float(np.degrees(2 * np.arctan(half_width / f)))
-    roots = np.roots([k, 0.0, 1.0, -half_width / f]) if k else np.array([half_width / f])
-    real = [r.real for r in roots if abs(r.imag) < 1e-9 and r.real > 0]
-    return float(np.degrees(2 * min(real))) if real else float("nan")
 
 
 def map_stretch(name: str, start: int, images: list[np.ndarray], mask: np.ndarray,
@@ -62,29 +52,42 @@ def map_stretch(name: str, start: int, images: list[np.ndarray], mask: np.ndarra
             return row
     f, k = sfm.camera_params[0], (sfm.camera_params[3] if len(sfm.camera_params) > 3 else 0.0)
     row.update(placed=float(sfm.registered.mean()), f=float(f) * scale, k=float(k),
-               angle=width_angle(model, float(f), float(k), mask.shape[1] / 2),
+               angle=float(np.degrees(2 * half_angle(model, mask.shape[1] / 2 / f, k))),
                reprojection_error=sfm.reprojection_error)
     return row
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def inputs_parser(description: str, procedures: int | None) -> argparse.ArgumentParser:
+    """The options naming the inputs: --data (simulated procedures, the first --procedures of
+    each folder), --inputs (videos or image folders), and --workers."""
+    parser = argparse.ArgumentParser(description=description)
     parser.add_argument("--data", type=Path, nargs="*", default=[],
                         help="folders of simulated procedures (their lens known)")
     parser.add_argument("--inputs", type=Path, nargs="*", default=[],
                         help="videos or image folders (their lens unknown)")
-    parser.add_argument("--procedures", type=int, default=6, help="the first N of each folder")
+    parser.add_argument("--procedures", type=int, default=procedures,
+                        help="the first N of each folder")
+    parser.add_argument("--workers", type=int, default=2)
+    return parser
+
+
+def true_lenses(args: argparse.Namespace) -> dict[str, tuple[str, float]]:
+    """Each simulated procedure's path: its camera's model and angle across the width."""
+    return {str(proc.path): (proc.camera.model, proc.camera.hfov_deg)
+            for folder in args.data for proc in list_procedures(folder)[:args.procedures]}
+
+
+def main() -> None:
+    parser = inputs_parser(__doc__.splitlines()[0], 6)
     parser.add_argument("--stretches", type=int, default=3)
     parser.add_argument("--length", type=int, default=120, help="frames per stretch")
-    parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--model", default=FISHEYE_MODEL, choices=[FISHEYE_MODEL, CAMERA_MODEL])
     parser.add_argument("--initial-fov", type=float, default=120.0,
                         help="degrees across the longer side the mapper's f starts from "
                              "(through an equidistant lens for the fisheye model; a prior it "
                              "needs)")
     args = parser.parse_args()
-    truth = {str(proc.path): (proc.camera.model, proc.camera.hfov_deg)
-             for folder in args.data for proc in list_procedures(folder)[:args.procedures]}
+    truth = true_lenses(args)
     layout = SelfCalibrationConfig(windows=args.stretches, length=args.length, min_agreeing=1)
     with ProcessPoolExecutor(args.workers, get_context("spawn")) as pool:
         jobs = []

@@ -13,6 +13,13 @@ consensus: the largest group of mapped stretches whose focal lengths all lie wit
 K is then that group's median f, with the principal point at the image centre. Otherwise
 there is no estimate. Each stretch also keeps figures of its map's quality and of the
 camera's motion, which need no ground truth (`Stretch`).
+
+Mapped with COLMAP's one-coefficient fisheye camera instead (`camera_model`), the stretches
+tell the lens (`SelfCalibration.lens`): a ray θ off the axis lands f (θ + k θ³) from the
+centre, so an equidistant fisheye reads k near 0 and a pinhole, f tan θ, k near 1/3 or more
+(`docs/depth.md`, "Telling the lens from the video"). The consensus is then the mapped
+stretches that read as a pinhole, or the largest group of those that read as a fisheye whose
+angles across the width agree, whichever holds more (neither when they hold as many).
 """
 
 from __future__ import annotations
@@ -32,7 +39,7 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
-from fusion.sfm_baseline import NoModel, run_sfm
+from fusion.sfm_baseline import CAMERA_MODEL, FISHEYE_MODEL, NoModel, run_sfm
 from hybrid import LOG_FORMAT
 from hybrid.types import InputError
 
@@ -79,17 +86,25 @@ class SelfCalibrationConfig:
     """Keep SIFT off each frame's specular highlights (`highlight_free`): they slide over
     the wall as the light moves with the camera, so features on them break the static scene
     the mapper assumes."""
+    camera_model: str = CAMERA_MODEL
+    """The mapper's camera: `CAMERA_MODEL` (a pinhole: the focal length, `SelfCalibration.K`)
+    or `FISHEYE_MODEL` (the lens, `SelfCalibration.lens`; it needs initial_field_of_view,
+    taken through an equidistant lens)."""
 
     def __post_init__(self):
         if (not 1 <= self.min_agreeing <= self.windows or self.length < 2
                 or not 0 < self.min_registered <= 1 or not self.agreement > 0
                 or not self.contrast >= 0 or self.contrast_tiles < 1
                 or not 0 <= self.min_field_of_view < 180
-                or not 0 <= self.initial_field_of_view < 180):
+                or not 0 <= self.initial_field_of_view < 180
+                or self.camera_model not in (CAMERA_MODEL, FISHEYE_MODEL)
+                or (self.camera_model == FISHEYE_MODEL and not self.initial_field_of_view)):
             raise InputError(f"self-calibration needs 1 <= min_agreeing <= windows, length >= 2,"
                              f" 0 < min_registered <= 1, agreement > 0, contrast >= 0, "
-                             f"contrast_tiles >= 1, and min_field_of_view and "
-                             f"initial_field_of_view in [0, 180), got {self}")
+                             f"contrast_tiles >= 1, min_field_of_view and "
+                             f"initial_field_of_view in [0, 180), and camera_model "
+                             f"{CAMERA_MODEL} or {FISHEYE_MODEL} (this one with an "
+                             f"initial_field_of_view), got {self}")
 
 
 @dataclass(frozen=True)
@@ -115,11 +130,44 @@ class Stretch:
     (degrees). Without such a turn f is undetermined: scaling f and the sideways coordinates
     of every point and camera by reciprocal factors changes no image (a roll about the viewing
     axis does not help either)."""
+    k: float | None = None
+    """The fisheye camera's coefficient (`SelfCalibrationConfig.camera_model`); None under the
+    pinhole camera and when no model was built."""
+
+
+FISHEYE_BELOW = 0.2
+"""A stretch mapped with the fisheye camera whose k is below this reads as an equidistant
+fisheye, one at or above it as a pinhole: between the one's 0 and the other's 1/3 or more
+(measured: |k| <= 0.07 on 36 fisheye stretches, k > 0.45 on 28 pinhole ones, `docs/depth.md`,
+"Telling the lens from the video")."""
+
+
+def half_angle(model: str, ratio: float, k: float = 0.0) -> float:
+    """Radians off the axis of a ray that lands `ratio` focal lengths from the centre: through
+    a pinhole, arctan(ratio); through the fisheye, the smallest positive root θ of θ + k θ³ =
+    ratio (NaN without one, as for k < 0 far out)."""
+    if model == CAMERA_MODEL:
+        return float(np.arctan(ratio))
+    roots = np.roots([k, 0.0, 1.0, -ratio]) if k else np.array([ratio])
+    real = [r.real for r in roots if abs(r.imag) < 1e-9 and r.real > 0]
+    return float(min(real)) if real else float("nan")
+
+
+@dataclass(frozen=True)
+class FoundLens:
+    """The lens the fisheye camera's stretches agree on."""
+
+    model: str
+    """'equidistant' or 'pinhole' (`hybrid.types.Camera.model`)."""
+    width_deg: float
+    """Degrees across the frames' width: the agreeing stretches' median (for a pinhole, a
+    loose reading the run does not use)."""
 
 
 @dataclass(frozen=True)
 class SelfCalibration:
-    """The stretches of one input as mapped, and the K their consensus gives."""
+    """The stretches of one input as mapped, and the K (under the fisheye camera, the lens)
+    their consensus gives."""
 
     frames: int
     """Frames of the input."""
@@ -143,28 +191,58 @@ class SelfCalibration:
                 if self.field_of_view(s) >= self.config.min_field_of_view]
 
     def field_of_view(self, stretch: Stretch) -> float:
-        """Field of view (degrees) of a stretch's fx (one that built a model), the wider of
-        the horizontal and the vertical."""
+        """Field of view (degrees) of a stretch that built a model, the wider of the horizontal
+        and the vertical."""
         height, width = self.size
-        half = max(width / 2 / stretch.fx, height / 2 / (stretch.fx * self.fy_over_fx))
-        return float(np.degrees(2 * np.arctan(half)))
+        ratio = max(width / 2 / stretch.fx, height / 2 / (stretch.fx * self.fy_over_fx))
+        return float(np.degrees(2 * half_angle(self.config.camera_model, ratio,
+                                               stretch.k or 0.0)))
 
-    @property
-    def agreeing(self) -> list[Stretch]:
-        """The largest group of mapped stretches within `agreement` of each other (of equal
-        groups, the tightest)."""
-        ranked = sorted(self.mapped, key=lambda s: s.fx)
+    def width_angle(self, stretch: Stretch) -> float:
+        """Degrees across the frames' width of a stretch that built a model."""
+        return float(np.degrees(2 * half_angle(self.config.camera_model,
+                                               self.size[1] / 2 / stretch.fx, stretch.k or 0.0)))
+
+    def lens_of(self, stretch: Stretch) -> str:
+        """'equidistant' or 'pinhole': what a stretch mapped with the fisheye camera reads as
+        (`FISHEYE_BELOW`)."""
+        return "equidistant" if stretch.k < FISHEYE_BELOW else "pinhole"
+
+    def _largest_group(self, stretches: list[Stretch], value: Callable[[Stretch], float]
+                       ) -> list[Stretch]:
+        """The largest group of `stretches` whose values lie within `agreement` of each
+        other (of equal groups, the tightest), in order of their start."""
+        ranked = sorted(stretches, key=value)
         best: list[Stretch] = []
         for i, low in enumerate(ranked):
-            group = [s for s in ranked[i:] if s.fx <= low.fx * (1 + self.config.agreement)]
-            if len(group) > len(best) or (len(group) == len(best) and
-                                          group[-1].fx / low.fx < best[-1].fx / best[0].fx):
+            group = [s for s in ranked[i:] if value(s) <= value(low) * (1 + self.config.agreement)]
+            if len(group) > len(best) or (len(group) == len(best) and value(group[-1]) / value(low)
+                                          < value(best[-1]) / value(best[0])):
                 best = group
         return sorted(best, key=lambda s: s.start)
 
     @property
+    def agreeing(self) -> list[Stretch]:
+        """The largest group of mapped stretches whose fx lie within `agreement` of each
+        other. Under the fisheye camera, the larger (none when they are as large) of the
+        mapped stretches that read as a pinhole and the largest group of those that read as a
+        fisheye whose angles across the width agree: the run resamples a fisheye at its angle,
+        but reads a pinhole as it is, and the fisheye camera fits a pinhole's angle loosely
+        (87 and 101 degrees for the two stretches of the tube's 90, measured on the frames of
+        `tests/test_self_calibration.py::test_the_lens_of_the_tube_is_told_from_its_frames`)."""
+        if self.config.camera_model == CAMERA_MODEL:
+            return self._largest_group(self.mapped, lambda s: s.fx)
+        fisheye = self._largest_group([s for s in self.mapped
+                                       if self.lens_of(s) == "equidistant"], self.width_angle)
+        pinhole = [s for s in self.mapped if self.lens_of(s) == "pinhole"]
+        return [] if len(fisheye) == len(pinhole) else max(fisheye, pinhole, key=len)
+
+    @property
     def K(self) -> np.ndarray | None:
-        """(3, 3) at the frames' size; None without a consensus."""
+        """(3, 3) at the frames' size under the pinhole camera; None without a consensus."""
+        if self.config.camera_model != CAMERA_MODEL:
+            raise ValueError(f"stretches mapped with {self.config.camera_model} give a lens, "
+                             f"not a K")
         if len(self.agreeing) < self.config.min_agreeing:
             return None
         fx = float(np.median([s.fx for s in self.agreeing]))
@@ -172,23 +250,48 @@ class SelfCalibration:
         return np.array([[fx, 0, (width - 1) / 2], [0, fx * self.fy_over_fx, (height - 1) / 2],
                          [0, 0, 1]])
 
+    @property
+    def lens(self) -> FoundLens | None:
+        """The lens under the fisheye camera; None without a consensus."""
+        if self.config.camera_model != FISHEYE_MODEL:
+            raise ValueError(f"stretches mapped with {self.config.camera_model} give a K, not "
+                             f"a lens")
+        agreeing = self.agreeing
+        if len(agreeing) < self.config.min_agreeing:
+            return None
+        return FoundLens(self.lens_of(agreeing[0]),
+                         float(np.median([self.width_angle(s) for s in agreeing])))
+
     def describe(self) -> str:
         """One line: what the estimate is, or why there is none, and every stretch."""
-        seen = [(s.start, round(s.registered, 2), s.fx and round(s.fx, 1))
-                for s in self.stretches]
         if len(self.stretches) < self.config.min_agreeing:
             return (f"{self.frames} frames hold fewer than {self.config.min_agreeing} "
                     f"stretches of {self.config.length}: not mapped")
-        K = self.K
-        head = ("no consensus" if K is None else
-                f"fx {K[0, 0]:.1f}, fy {K[1, 1]:.1f} at the network's size")
-        mapped = self.mapped
-        narrow = [s.start for s in self.placed if s not in mapped]
+        if self.config.camera_model == CAMERA_MODEL:
+            K = self.K
+            head = ("no consensus" if K is None else
+                    f"fx {K[0, 0]:.1f}, fy {K[1, 1]:.1f} at the network's size")
+            seen = [(s.start, round(s.registered, 2), s.fx and round(s.fx, 1))
+                    for s in self.stretches]
+            listed = "first frame, fraction placed, fx"
+        else:
+            lens = self.lens
+            head = ("no consensus" if lens is None else
+                    f"{lens.model}, {lens.width_deg:.0f} degrees across the width")
+            seen = [(s.start, round(s.registered, 2)) + (() if s.fx is None else (
+                round(s.k, 3), _rounded(self.width_angle(s)))) for s in self.stretches]
+            listed = "first frame, fraction placed, k, degrees across the width"
+        views = {s.start: self.field_of_view(s) for s in self.placed}
+        narrow = [start for start, view in views.items()
+                  if view < self.config.min_field_of_view]
         if narrow:
             head += (f"; the stretches from frames {narrow} mapped at a field of view under "
                      f"{self.config.min_field_of_view:g} degrees, too narrow for an endoscope, "
                      f"and do not count")
-        return f"{head} (per stretch: first frame, fraction placed, fx: {seen})"
+        if unseen := [start for start, view in views.items() if not np.isfinite(view)]:
+            head += (f"; the stretches from frames {unseen} mapped with a k that sends no ray "
+                     f"to the frames' edge, and do not count")
+        return f"{head} (per stretch: {listed}: {seen})"
 
     @classmethod
     def from_record(cls, record: dict, config: SelfCalibrationConfig | None = None
@@ -197,25 +300,34 @@ class SelfCalibration:
         mapped; nothing is mapped again)."""
         if config is None:
             config = config_of_record(record)
+        elif config.camera_model != config_of_record(record).camera_model:
+            raise ValueError(f"a record of stretches mapped with "
+                             f"{config_of_record(record).camera_model} read as mapped with "
+                             f"{config.camera_model}")
         return cls(record["frames"], [Stretch(**s) for s in record["stretches"]], config,
                    tuple(record["size"]), record["fy_over_fx"])
 
     def record(self) -> dict:
         """JSON-ready: the config, the frames' size and aspect, every stretch, which were
-        mapped and agreed, and the K (network size; None without a consensus)."""
-        K = self.K
+        mapped and agreed, and the K (network size) or under the fisheye camera the lens
+        (None without a consensus)."""
+        if self.config.camera_model == CAMERA_MODEL:
+            K = self.K
+            found = {"K": None if K is None else K.tolist()}
+        else:
+            lens = self.lens
+            found = {"lens": None if lens is None else asdict(lens)}
         return {"config": asdict(self.config), "frames": self.frames, "size": list(self.size),
                 "fy_over_fx": self.fy_over_fx, "stretches": [asdict(s) for s in self.stretches],
                 "mapped": [s.start for s in self.mapped],
-                "agreeing": [s.start for s in self.agreeing],
-                "K": None if K is None else K.tolist()}
+                "agreeing": [s.start for s in self.agreeing], **found}
 
 
 FIELDS_ADDED = {"contrast": 0.0, "min_field_of_view": 0.0, "highlights": False,
-                "initial_field_of_view": 0.0}
+                "initial_field_of_view": 0.0, "camera_model": CAMERA_MODEL}
 """Fields added to SelfCalibrationConfig since records were first kept, each with the value
 that gives what records made before it did (no contrast step, no bound, no masks, COLMAP's
-start)."""
+start, a pinhole)."""
 
 
 def config_of_record(record: dict) -> SelfCalibrationConfig:
@@ -244,6 +356,15 @@ def calibrate_sequence(seq: FrameSequence,
                           config, progress, workers)
 
 
+def stretch_spans(count: int, config: SelfCalibrationConfig) -> list[range]:
+    """The frames of each stretch mapped (`stretch_starts`): none when fewer than
+    min_agreeing fit, as no consensus is then possible."""
+    starts = stretch_starts(count, config)
+    if len(starts) < config.min_agreeing:
+        return []
+    return [range(start, min(start + config.length, count)) for start in starts]
+
+
 def stretch_starts(count: int, config: SelfCalibrationConfig) -> list[int]:
     """First frames of the stretches: as many as fit without overlapping (at most `windows`,
     at least one, of the whole input when it is shorter than `length`), evenly spaced."""
@@ -266,10 +387,7 @@ def self_calibrate(frame: Callable[[int], np.ndarray], count: int, region: np.nd
     height, width = region.shape
     square = SquarePixels((height, width), pixel_aspect)
     mask = square.mask(region)
-    starts = stretch_starts(count, config)
-    if len(starts) < config.min_agreeing:
-        starts = []  # no consensus possible: spare the mapping
-    spans = [range(start, min(start + config.length, count)) for start in starts]
+    spans = stretch_spans(count, config)
 
     def stretch(ids: range) -> partial:
         """The mapping of one stretch, ready to run here or in a worker."""
@@ -278,7 +396,7 @@ def self_calibrate(frame: Callable[[int], np.ndarray], count: int, region: np.nd
                 else None)
         return partial(_map_stretch, ids, [square(contrast_enhanced(f, config)) for f in frames],
                        mask, kept, f"{name} frames {ids.start}-{ids.stop - 1}", square.scale[0],
-                       config.initial_field_of_view or None)
+                       config.initial_field_of_view or None, config.camera_model)
 
     bar = {"desc": f"self-calibrate {name}", "disable": not progress, "unit": "stretch"}
     if workers > 1 and len(spans) > 1:
@@ -303,17 +421,24 @@ def _start_mapper(log_level: int) -> None:
 
 def _map_stretch(ids: range, images: list[np.ndarray], mask: np.ndarray,
                  frame_masks: list[np.ndarray] | None, name: str, scale: float,
-                 initial_field_of_view: float | None) -> Stretch:
+                 initial_field_of_view: float | None, camera_model: str) -> Stretch:
     """One stretch as mapped; `scale` takes the mapper's f to the network's size."""
     with tempfile.TemporaryDirectory() as work:
         try:
-            sfm = run_sfm(images, mask, Path(work), name, frame_masks, initial_field_of_view)
+            sfm = run_sfm(images, mask, Path(work), name, frame_masks, initial_field_of_view,
+                          camera_model)
         except NoModel as err:  # this stretch is not mapped
             log.info("%s", err)
             return Stretch(ids.start, len(ids), 0.0, None)
+    k = float(sfm.camera_params[3]) if camera_model == FISHEYE_MODEL else None
     return Stretch(ids.start, len(ids), float(sfm.registered.mean()), float(sfm.K[0, 0]) * scale,
                    sfm.reprojection_error, sfm.points, sfm.track_length,
-                   _turn(sfm.poses[sfm.registered]))
+                   _turn(sfm.poses[sfm.registered]), k)
+
+
+def _rounded(degrees: float) -> int | None:
+    """Degrees to the nearest whole one, None for NaN."""
+    return round(degrees) if np.isfinite(degrees) else None
 
 
 def _turn(poses: np.ndarray) -> float:

@@ -56,6 +56,14 @@ FisheyeFov = Annotated[float | None, typer.Option(
     "principal point taken at the region's centre): its frames are resampled to a pinhole "
     "camera of the same angle (at most 130 degrees, the widest the networks were trained on) "
     "before every stage, and intrinsics.json gives that pinhole's K.")]
+FindLens = Annotated[bool, typer.Option(
+    "--find-lens", help="Tell the lens from the video, with no calibration: structure from "
+    "motion with a one-coefficient fisheye camera on up to 5 stretches of 120 frames of the "
+    "video as recorded, each at a field of view of 60 degrees or more (lens.json; about 2 "
+    "minutes of mapping on 2 CPU cores, and two more readings of the video). Where at least 3 "
+    "read as an equidistant fisheye and agree on its angle, the frames are resampled as "
+    "--fisheye-fov does, at that angle; where at least 3 read as a pinhole, as they are; "
+    "otherwise the video is refused.")]
 PipelineDepth = Annotated[Path | None, typer.Option(help="Depth model (default: shipped).")]
 Insertion = Annotated[bool, typer.Option(
     help="The video is an insertion, not a withdrawal (the look-ahead band lies where the "
@@ -235,6 +243,7 @@ def run(
     insertion: Insertion = False,
     segment_seconds: Annotated[float, typer.Option(help="Segment length.")] = 10.0,
     fisheye_fov: FisheyeFov = None,
+    find_lens: FindLens = False,
     self_calibrate: ViewSelfCalibrate = False,
     device: Device = "auto",
 ):
@@ -245,7 +254,7 @@ def run(
     config = _direction(RunConfig(depth_checkpoint=_opt(depth_checkpoint),
                                   coverage_checkpoint=_opt(coverage_checkpoint), fps=fps,
                                   segment_seconds=segment_seconds, fisheye_fov_deg=fisheye_fov,
-                                  self_calibrate=self_calibrate), insertion)
+                                  find_lens=find_lens, self_calibrate=self_calibrate), insertion)
     result = run_video(video, out, config, Models.load(config, pick_device(device)),
                        region=_read_mask(mask), echo=typer.echo)
     table = json.loads((out / "coverage.json").read_text())
@@ -271,6 +280,7 @@ def batch(
     insertion: Annotated[bool, typer.Option(
         help="The videos are insertions, not withdrawals (all of them).")] = False,
     fisheye_fov: FisheyeFov = None,
+    find_lens: FindLens = False,
     self_calibrate: ViewSelfCalibrate = False,
     device: Device = "auto",
 ):
@@ -283,7 +293,7 @@ def batch(
 
     config = _direction(RunConfig(depth_checkpoint=_opt(depth_checkpoint),
                                   coverage_checkpoint=_opt(coverage_checkpoint),
-                                  fisheye_fov_deg=fisheye_fov,
+                                  fisheye_fov_deg=fisheye_fov, find_lens=find_lens,
                                   self_calibrate=self_calibrate), insertion)
     summary = run_batch(folder, out, config, workers=workers, device=pick_device(device))
     rows = list(csv.DictReader(summary.open()))
@@ -306,6 +316,10 @@ def eval_pipeline(
         help="Run each fisheye procedure (simulate --fisheye) with its field of view across "
              "the width from its camera.json, as `c2d2 run --fisheye-fov` is given an "
              "endoscope's specification. Pinhole procedures run as they are.")] = False,
+    find_lens: Annotated[bool, typer.Option(
+        "--find-lens", help="Tell each procedure's lens from its video, as `c2d2 run "
+        "--find-lens` does; eval.json gives each found lens beside the true one, and a "
+        "procedure whose lens is not told is listed and left out.")] = False,
     self_calibrate: ViewSelfCalibrate = False,
     device: Device = "auto",
 ):
@@ -317,9 +331,11 @@ def eval_pipeline(
     from learned.device import pick_device
     from learned.train import expand_inputs
 
+    if known_lens and find_lens:
+        raise InputError("give either --known-lens or --find-lens, not both")
     config = RunConfig(depth_checkpoint=_opt(depth_checkpoint),
                        coverage_checkpoint=_opt(coverage_checkpoint),
-                       self_calibrate=self_calibrate)
+                       find_lens=find_lens, self_calibrate=self_calibrate)
     models = Models.load(config, pick_device(device))
     paths = expand_inputs(data)
     _each_once(paths)
@@ -706,6 +722,7 @@ def adapt(
         help="Synthetic videos or procedures the model was NOT trained on: their windows "
              "replace the training windows as CORAL's source statistics.")] = None,
     fisheye_fov: FisheyeFov = None,
+    find_lens: FindLens = False,
     self_calibrate: ViewSelfCalibrate = False,
     device: Device = "auto",
 ):
@@ -735,7 +752,7 @@ def adapt(
     config = _direction(RunConfig(depth_checkpoint=_opt(depth_checkpoint),
                                   coverage_checkpoint=str(model or _shipped_coverage()),
                                   segment_seconds=segment_seconds, fisheye_fov_deg=fisheye_fov,
-                                  self_calibrate=self_calibrate), insertion)
+                                  find_lens=find_lens, self_calibrate=self_calibrate), insertion)
     models = Models.load(config, pick_device(device))
     T, stride = models.coverage.config.segment_frames, models.coverage.config.segment_stride
 
@@ -747,7 +764,7 @@ def adapt(
 
     with tempfile.TemporaryDirectory() as work:
         if source:  # simulated pinhole withdrawals, whatever the target videos are
-            simulated = replace(_direction(config, False), fisheye_fov_deg=None)
+            simulated = replace(_direction(config, False), fisheye_fov_deg=None, find_lens=False)
             windows = set_source(models.coverage, features(
                 source, Path(work) / "source", simulated), stride)
             typer.echo(f"CORAL source statistics from {windows} held-out windows")

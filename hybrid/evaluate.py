@@ -5,8 +5,10 @@ per segment: learned and geometric coverage, and the report's combined coverage
 (hybrid.crosscheck.combined_coverage), against the truth (MAE, bias, 3-class accuracy), and
 the 3-class agreement between the two branches; the MAEs and the agreement with 95% intervals
 bootstrapped over procedures. Writes out/eval.json (with the model files, the geometric
-weight the combined coverage was made with, and, for networks that read a self-calibrated field
-of view, how many procedures had one) and out/eval_scatter.png.
+weight the combined coverage was made with, for networks that read a self-calibrated field
+of view how many procedures had one, and, when the lens is told from the video, each
+procedure's found lens beside its true one) and out/eval_scatter.png. With the lens told from
+the video, a procedure whose stretches agree on none is listed and left out.
 """
 
 from __future__ import annotations
@@ -21,7 +23,7 @@ import numpy as np
 
 from hybrid import workdir as W
 from hybrid.dataset import Procedure
-from hybrid.pipeline import Models, RunConfig, run_video
+from hybrid.pipeline import LensNotFound, Models, RunConfig, run_video
 from hybrid.types import InputError
 from learned.coverage_eval import procedure_interval, three_class
 
@@ -107,10 +109,22 @@ def evaluate_pipeline(procedures: list[Procedure], out: Path, config: RunConfig,
     echo = echo or log.info
     rows = []
     views: dict[str, int] = {}
+    lenses: dict[str, dict] = {}
+    left_out: dict[str, str] = {}
     for proc in procedures:
         work = work_folder(out, proc)
-        run_video(proc.path, work, procedure_config(config, proc, known_lens), models,
-                  progress=False, echo=lambda _: None)
+        try:
+            run_video(proc.path, work, procedure_config(config, proc, known_lens), models,
+                      progress=False, echo=lambda _: None)
+        except LensNotFound as err:
+            echo(f"left out: {err}")
+            left_out[str(proc.path)] = str(err)
+            continue
+        finally:
+            if config.find_lens and (work / W.LENS).is_file():
+                lenses[str(proc.path)] = {
+                    "found": json.loads((work / W.LENS).read_text())["lens"],
+                    "true": {"model": proc.camera.model, "width_deg": proc.camera.hfov_deg}}
         if "field_of_view" in (learned := json.loads((work / W.LEARNED).read_text())):
             source = learned["field_of_view"]["source"]
             views[source] = views.get(source, 0) + 1
@@ -130,11 +144,15 @@ def evaluate_pipeline(procedures: list[Procedure], out: Path, config: RunConfig,
         echo(f"{proc.path}: truth {np.round(truth, 2).tolist()} learned "
              f"{[round(r['learned'], 2) for r in table]} geometric "
              f"{[None if r['geometric'] is None else round(r['geometric'], 2) for r in table]}")
+    if procedures and len(left_out) == len(procedures):
+        raise InputError(f"every procedure was left out, its lens not told from its video (the "
+                         f"first: {next(iter(left_out.values()))})")
     summary = summarise(rows)
     result = {"summary": summary, "checkpoints": models.tags,
               "geometric_weight": config.geometric_weight,
               "self_calibrate": config.self_calibrate, "field_of_view": views or None,
-              "known_lens": known_lens,
+              "known_lens": known_lens, "find_lens": config.find_lens,
+              "lenses": lenses or None, "left_out": left_out or None,
               "segments": rows}
     W.write_json(out / "eval.json", result)
     _scatter(rows, out / "eval_scatter.png")

@@ -14,6 +14,9 @@ networks' size). A video that decodes fewer frames than its container declares (
 corrupt frames and goes on, or stops where a file is cut short) is kept with the frames that
 decode and the loss is recorded (`decode_warning`).
 
+`scan` and `sampled` read only some frames of an input, written nowhere (the run's lens
+stage maps stretches of them before the input is ingested).
+
 A video filmed through a fisheye lens of a known field of view (`fisheye_fov_deg`, across
 the image region's width, equidistant, centred) has each frame's crop resampled at the
 input's resolution, before the resize, to the pinhole camera that sees the same angle across
@@ -25,7 +28,7 @@ The quality flags are read on the frames as recorded (resampling blurs what it e
 from __future__ import annotations
 
 import json
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -40,6 +43,7 @@ from hybrid.workdir import write_json
 from learned.frames import (
     VIDEO_SUFFIXES,
     Crop,
+    FrameSequence,
     check_fps,
     detect_region,
     image_files,
@@ -94,10 +98,22 @@ class _Source:
     region: np.ndarray | None = None
 
 
-def ingest(path: Path, size: tuple[int, int], frames_out: Path, region: np.ndarray | None = None,
-           fps: float | None = None, progress: bool = False,
-           fisheye_fov_deg: float | None = None) -> tuple[Ingested, np.ndarray]:
-    """Write frames_out (N, H, W, 3) uint8 and return the record and the region at (H, W)."""
+@dataclass
+class Scanned:
+    """An input read once: its frames counted, its image region and the region's box."""
+
+    path: Path
+    source: _Source
+    count: int
+    region: np.ndarray
+    """(H, W) bool at the input's size."""
+    crop: Crop
+
+
+def scan(path: Path, region: np.ndarray | None = None, fps: float | None = None,
+         progress: bool = False) -> Scanned:
+    """Pass 1 over an input: count its frames and find its image region (`region`, in input
+    pixels, when given)."""
     source = _open(Path(path), fps, region)
     first_pass = tqdm(source.open(), total=source.count_hint or None, unit="frame",
                       desc=f"scan {Path(path).name}", disable=not progress)
@@ -120,7 +136,35 @@ def ingest(path: Path, size: tuple[int, int], frames_out: Path, region: np.ndarr
                 [np.repeat(brightest[..., None], 3, axis=2)])
         except InputError as err:
             raise InputError(f"{path}: {err}") from err
-    crop = Crop.of(region, shape, str(path))
+    return Scanned(Path(path), source, count, region, Crop.of(region, shape, str(path)))
+
+
+def sampled(scanned: Scanned, size: tuple[int, int], indices: Iterable[int]) -> FrameSequence:
+    """Frames `indices` (and the first) of a scanned input, cut to its image region and
+    resized to `size`, read once more as far as the last of them: a FrameSequence of the
+    input's length, of which only those frames can be read."""
+    wanted = {0, *indices}
+    frames: dict[int, np.ndarray] = {}
+    for index, frame in enumerate(scanned.source.open()):
+        if index in wanted:
+            frames[index] = scanned.crop.fit(frame, size, cv2.INTER_AREA)
+        if len(frames) == len(wanted):
+            break
+    if len(frames) != len(wanted):
+        raise InputError(f"{scanned.path}: the second reading ended before frame "
+                         f"{min(wanted - frames.keys())} of the {scanned.count} the first "
+                         f"counted; the file changed or decodes unreliably: copy or re-encode it")
+    return FrameSequence(scanned.source.name, scanned.source.fps, size, frames.__getitem__,
+                         scanned.count, region=scanned.crop.fit_region(scanned.region, size),
+                         crop=scanned.crop)
+
+
+def ingest(path: Path, size: tuple[int, int], frames_out: Path, region: np.ndarray | None = None,
+           fps: float | None = None, progress: bool = False,
+           fisheye_fov_deg: float | None = None) -> tuple[Ingested, np.ndarray]:
+    """Write frames_out (N, H, W, 3) uint8 and return the record and the region at (H, W)."""
+    scanned = scan(path, region, fps, progress)
+    source, count, region, crop = scanned.source, scanned.count, scanned.region, scanned.crop
     small_region = crop.fit_region(region, size)  # of the frames as recorded: their flags
     to_pinhole, written_region = None, small_region
     if fisheye_fov_deg is not None:  # at the input's resolution, before the resize
@@ -171,8 +215,8 @@ def ingest(path: Path, size: tuple[int, int], frames_out: Path, region: np.ndarr
                    f"container declares could not be decoded (corrupt video) and are missing; "
                    f"frames after a damaged part are up to "
                    f"{(source.count_hint - count) / source.fps:.1f} s early")
-    record = Ingested(source.name, source.fps, count, shape[1], shape[0], asdict(crop), dark,
-                      bright, blurred, warning, fisheye_fov_deg)
+    record = Ingested(source.name, source.fps, count, crop.input_width, crop.input_height,
+                      asdict(crop), dark, bright, blurred, warning, fisheye_fov_deg)
     return record, written_region
 
 

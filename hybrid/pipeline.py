@@ -1,9 +1,10 @@
 """The whole C2D2 pipeline on one recorded video, stage by stage, in a work directory.
 
-ingest -> depth (learned depth, K, relative poses) -> [self-calibration] -> pose graph (the
-relative poses refined by RGB-D odometry, then smoothed) -> reconstruction (scale, TSDF mesh,
-lumen) -> geometric coverage (+ unrolled maps) -> learned coverage -> cross-check and report.
-The self-calibration runs only when asked for (`RunConfig.self_calibrate`). Each stage writes
+[lens] -> ingest -> depth (learned depth, K, relative poses) -> [self-calibration] -> pose
+graph (the relative poses refined by RGB-D odometry, then smoothed) -> reconstruction (scale,
+TSDF mesh, lumen) -> geometric coverage (+ unrolled maps) -> learned coverage -> cross-check
+and report. The lens and self-calibration stages run only when asked for
+(`RunConfig.find_lens`, `RunConfig.self_calibrate`). Each stage writes
 its files (hybrid.workdir) atomically and is skipped when they exist, so an interrupted run
 resumes where it stopped. Long arrays (frames, depth) are written
 and read in blocks (hybrid.npyio), so memory does not grow with the video's length.
@@ -35,13 +36,15 @@ from fusion.self_calibration import (
     SelfCalibration,
     SelfCalibrationConfig,
     calibrate_sequence,
+    stretch_spans,
 )
+from fusion.sfm_baseline import CAMERA_MODEL, FISHEYE_MODEL
 from hybrid import __version__
 from hybrid import workdir as W
 from hybrid.coverage import DELTA_PAIRS_CM, Lumen
 from hybrid.crosscheck import cross_check
 from hybrid.geometric_coverage import GeometricConfig
-from hybrid.ingest import Ingested, ingest
+from hybrid.ingest import Ingested, ingest, sampled, scan
 from hybrid.lens import check_fisheye_fov
 from hybrid.lumen_fit import FittedLumen
 from hybrid.npyio import NpyRows, NpyWriter
@@ -88,7 +91,17 @@ class RunConfig:
     fisheye_fov_deg: float | None = None
     """The video comes through an equidistant fisheye lens that sees this many degrees
     across the image region's width (the endoscope's specification): ingestion resamples
-    its frames to a pinhole camera (hybrid.ingest). None: a pinhole video."""
+    its frames to a pinhole camera (hybrid.ingest). None: a pinhole video, or one whose lens
+    `find_lens` tells."""
+    find_lens: bool = False
+    """Tell the lens from the video before ingesting it: stretches of it as recorded are mapped
+    by structure from motion with a fisheye camera (`lens_search`, minutes a video). A fisheye
+    is then resampled as with fisheye_fov_deg, at the angle its stretches agree on, a pinhole
+    read as it is, and a video whose stretches do not agree is refused (`LensNotFound`)."""
+    lens_search: SelfCalibrationConfig = field(default_factory=lambda: SelfCalibrationConfig(
+        min_agreeing=3, camera_model=FISHEYE_MODEL, initial_field_of_view=120.0))
+    """Its stretches and the consensus it needs: 3 agreeing, as the self-calibration's, the
+    mapper starting from 120 degrees through an equidistant lens."""
     min_usable_fraction: float = 0.5
     """A segment is assessable when at least this fraction of its frames is usable."""
     deficient_below: float = CLASS_EDGES[0]
@@ -122,9 +135,22 @@ class RunConfig:
                              f"{self.segment_seconds}")
         if self.fisheye_fov_deg is not None:
             check_fisheye_fov(self.fisheye_fov_deg)
+            if self.find_lens:
+                raise InputError("give either the fisheye's field of view or --find-lens, not "
+                                 "both")
+        if self.lens_search.camera_model != FISHEYE_MODEL:
+            raise InputError(f"the lens is told by the fisheye camera ({FISHEYE_MODEL}), not "
+                             f"by {self.lens_search.camera_model}")
+        if self.self_calibration.camera_model != CAMERA_MODEL:
+            raise InputError(f"the self-calibration's K is a pinhole's ({CAMERA_MODEL}), not "
+                             f"{self.self_calibration.camera_model}'s")
         if not (math.isfinite(self.geometric_weight) and self.geometric_weight >= 0):
             raise InputError(f"the geometric coverage's weight must be a finite number, 0 or "
                              f"more, got {self.geometric_weight}")
+
+
+class LensNotFound(InputError):
+    """The lens stage's stretches agree on no lens."""
 
 
 @dataclass
@@ -222,9 +248,33 @@ class _Run:
 
     # --- stages ---------------------------------------------------------------------------
 
+    def lens(self) -> None:
+        """`tell_lens` with as many mapping processes as this one has torch threads."""
+        found = tell_lens(self.source, self.size, self.config, self.region_input,
+                          self.progress, torch.get_num_threads())
+        W.write_json(self.path(W.LENS), found.record())
+
+    def lens_found(self) -> SelfCalibration:
+        """The lens stage's stretches under the run's rule."""
+        return SelfCalibration.from_record(json.loads(self.path(W.LENS).read_text()),
+                                           self.config.lens_search)
+
+    def fisheye_fov(self) -> float | None:
+        """The fisheye angle across the width that ingestion resamples: the one given, or the
+        lens stage's (None for a pinhole; `LensNotFound` without a consensus)."""
+        if not self.config.find_lens:
+            return self.config.fisheye_fov_deg
+        found = self.lens_found()
+        if found.lens is None:
+            raise LensNotFound(f"{self.source}: its lens could not be told from the video "
+                               f"({found.describe()}); give --fisheye-fov DEGREES for a fisheye "
+                               f"of known angle, or run without --find-lens to read it as a "
+                               f"pinhole, into another --out")
+        return found.lens.width_deg if found.lens.model == "equidistant" else None
+
     def ingest(self) -> None:
         record, region = ingest(self.source, self.size, self.path(W.FRAMES), self.region_input,
-                                self.config.fps, self.progress, self.config.fisheye_fov_deg)
+                                self.config.fps, self.progress, self.fisheye_fov())
         W.write_png(self.path(W.REGION), region.astype(np.uint8) * 255)
         record.save(self.path(W.INGEST))  # last: its presence marks the stage complete
 
@@ -246,8 +296,8 @@ class _Run:
                  **{f"gap{g}": r for g, r in result.relative.items()})
         self.path(W.RELATIVE + ".partial.npz").replace(self.path(W.RELATIVE))
         intrinsics = aggregate_intrinsics(result.K_pairs, self.size, seq.crop, seq.fps)
-        if self.config.fisheye_fov_deg is not None:  # K is the resampled frames' pinhole's
-            intrinsics["resampled_from_fisheye_fov_deg"] = self.config.fisheye_fov_deg
+        if self.ingested.fisheye_fov_deg is not None:  # K is the resampled frames' pinhole's
+            intrinsics["resampled_from_fisheye_fov_deg"] = self.ingested.fisheye_fov_deg
         W.write_json(self.path(W.INTRINSICS), intrinsics)
         depth.close()  # last: its presence marks the stage complete
 
@@ -418,6 +468,19 @@ class _Run:
         return None if found is None else found.K
 
 
+def tell_lens(source: Path, size: tuple[int, int], config: RunConfig,
+              region: np.ndarray | None = None, progress: bool = False, workers: int = 1
+              ) -> SelfCalibration:
+    """The lens stage: the stretches of `config.lens_search` of an input as recorded (read
+    once to find its image region, or given it in input pixels, then as far as the last
+    stretch), at the networks' `size`, mapped with the fisheye camera."""
+    scanned = scan(source, region, config.fps, progress)
+    search = config.lens_search
+    frames = sampled(scanned, size, [i for span in stretch_spans(scanned.count, search)
+                                     for i in span])
+    return calibrate_sequence(frames, search, progress, workers)
+
+
 def _percentiles(values: np.ndarray, q: tuple[float, ...]) -> list[float] | None:
     """The q-th percentiles of the finite values, rounded (None if there are none)."""
     values = values[np.isfinite(values)]
@@ -426,12 +489,14 @@ def _percentiles(values: np.ndarray, q: tuple[float, ...]) -> list[float] | None
 
 def video_features(source: Path, work: Path, config: RunConfig, models: Models,
                    progress: bool = True) -> tuple[np.ndarray, int]:
-    """The ingest, depth and (if on) self-calibration stages of `run_video` (resumable, in
-    `work`), then the per-frame coverage features (N, 4, F); returns them with the frames per
-    segment."""
+    """The lens (if on), ingest, depth and self-calibration (if on) stages of `run_video`
+    (resumable, in `work`), then the per-frame coverage features (N, 4, F); returns them with
+    the frames per segment."""
     source, work = Path(source), Path(work)
     _prepare(work, config, source, models, None)
     run = _Run(source, work, config, models, None, progress)
+    if config.find_lens and not (work / W.LENS).is_file():
+        run.lens()
     if not (work / W.INGEST).is_file():
         run.ingest()
     run.check_length()
@@ -485,6 +550,7 @@ def run_video(source: Path, out: Path, config: RunConfig = RunConfig(),
     _prepare(out, config, source, models, region)
     run = _Run(source, out, config, models, region, progress)
     stages: list[tuple[str, Callable[[], None], list[str]]] = [
+        *([("lens", run.lens, [W.LENS])] if config.find_lens else []),
         ("ingest", run.ingest, [W.FRAMES, W.INGEST, W.REGION]),
         ("depth", run.depth_stage, [W.DEPTH, W.RELATIVE, W.INTRINSICS]),
         *([("self-calibration", run.self_calibration, [W.SELF_CALIBRATION])]
@@ -512,8 +578,11 @@ def run_video(source: Path, out: Path, config: RunConfig = RunConfig(),
             finally:
                 timing[name] = round(time.time() - tic, 2)
                 W.write_json(timing_path, timing)
-            rate = run.ingested.frames / max(timing[name], 1e-9)
-            echo(f"{name}: {timing[name]:.1f} s ({rate:.0f} frames/s)")
+            rate = ("" if not (out / W.INGEST).is_file() else
+                    f" ({run.ingested.frames / max(timing[name], 1e-9):.0f} frames/s)")
+            echo(f"{name}: {timing[name]:.1f} s{rate}")
+        if name == "lens":
+            echo(f"note: the lens told from the video: {run.lens_found().describe()}")
         if name == "ingest":
             run.check_length()
     warnings = []
@@ -579,26 +648,29 @@ def _differing(before: dict, now: dict, prefix: str = "") -> str:
     return "; ".join(names)
 
 
-SETTINGS_ADDED = {"self_calibrate": False, "fisheye_fov_deg": None}
+SETTINGS_ADDED = {"self_calibrate": False, "fisheye_fov_deg": None, "find_lens": False}
 """Settings added to RunConfig since work folders were first made, each with the value that
 computes what runs made before it did: a folder that does not record one was made with it."""
 
 
 def made_with(recorded: dict) -> dict:
     """A folder's recorded config with the settings added since filled in as it was made
-    (those of self_calibration by `fusion.self_calibration.FIELDS_ADDED`)."""
+    (those of self_calibration and lens_search by `fusion.self_calibration.FIELDS_ADDED`)."""
     config = {**SETTINGS_ADDED, **recorded}
-    if "self_calibration" in config:
-        config["self_calibration"] = {**FIELDS_ADDED, **config["self_calibration"]}
+    for group in ("self_calibration", "lens_search"):
+        if group in config:
+            config[group] = {**FIELDS_ADDED, **config[group]}
     return config
 
 
 def recorded_config(config: RunConfig) -> dict:
-    """The configuration as config.json records it (the self-calibration's stretches only when
-    it is on)."""
+    """The configuration as config.json records it (the self-calibration's and the lens
+    search's stretches only when they are on)."""
     recorded = json.loads(json.dumps(asdict(config)))
     if not config.self_calibrate:
         del recorded["self_calibration"]
+    if not config.find_lens:
+        del recorded["lens_search"]
     return recorded
 
 

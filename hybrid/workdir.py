@@ -10,6 +10,9 @@ import json
 import os
 from pathlib import Path
 
+LENS = "lens.json"
+"""Structure from motion with a fisheye camera on stretches of the video as recorded
+(fusion.self_calibration's record), when the run tells the lens from the video."""
 FRAMES = "frames.npy"
 """(N, H, W, 3) uint8 frames at the networks' size, cropped to the image region."""
 REGION = "region.png"

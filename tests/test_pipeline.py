@@ -151,7 +151,7 @@ def assert_input_error(result, *names: str) -> str:
 def test_run_writes_every_file_of_the_work_directory(pipeline_run, procedure):
     out, result = pipeline_run
     failure_files = {W.GEOMETRIC_ERROR, W.ERROR}  # written only when something fails
-    optional = {W.SELF_CALIBRATION}  # written only when asked for
+    optional = {W.SELF_CALIBRATION, W.LENS}  # written only when asked for
     names = [value for key, value in vars(W).items() if key.isupper() and isinstance(value, str)
              and value not in failure_files | optional]
     assert len(names) == 21
@@ -567,18 +567,21 @@ def test_a_differing_setting_inside_a_group_is_named():
 
 
 def test_settings_added_since_a_folder_was_made_are_filled_in_as_it_was_made():
-    """self_calibrate, and the highlights and the bound on the field of view of a recorded
-    self_calibration, were off before they existed; a folder that did not self-calibrate gains
-    no self_calibration."""
+    """self_calibrate, find_lens, and the highlights, the bound on the field of view and the
+    camera model of a recorded self_calibration, were off (or a pinhole) before they existed;
+    a folder that did not self-calibrate or tell the lens gains no self_calibration or
+    lens_search."""
     recorded = recorded_config(RunConfig(self_calibrate=True))
-    for added in ("highlights", "min_field_of_view"):
+    for added in ("highlights", "min_field_of_view", "camera_model"):
         del recorded["self_calibration"][added]
     before = RunConfig(self_calibrate=True, self_calibration=replace(
         RunConfig().self_calibration, min_field_of_view=0.0))
     assert made_with(recorded) == recorded_config(before) != recorded_config(
         RunConfig(self_calibrate=True))
     plain = recorded_config(RunConfig())
-    del plain["self_calibrate"], plain["fisheye_fov_deg"]
+    assert "lens_search" not in plain and "lens_search" in recorded_config(
+        RunConfig(find_lens=True))
+    del plain["self_calibrate"], plain["fisheye_fov_deg"], plain["find_lens"]
     assert made_with(plain) == recorded_config(RunConfig())
 
 
@@ -941,6 +944,31 @@ def test_ingest_refuses_an_image_region_too_thin_to_judge_frames_by(frames, tmp_
     np.fill_diagonal(outline, True)
     with pytest.raises(InputError, match="too thin to judge the frames by"):
         ingest(video, (128, 160), tmp_path / "frames.npy", outline)
+
+
+def test_the_frames_sampled_from_a_video_are_those_it_ingests(tmp_path):
+    """`sampled` (the lens stage's reading) gives the frames asked for, and the first, as
+    `ingest` writes them, with its region, and no other frame."""
+    from hybrid.ingest import ingest, sampled, scan
+
+    y, x = np.mgrid[:96, :120]
+    region = np.hypot(x - 59.5, y - 47.5) < 52
+    rng = np.random.default_rng(0)
+    frames = [np.where(region[..., None], rng.integers(60, 200, (96, 120, 3)), 0)
+              .astype(np.uint8) for _ in range(12)]
+    video = write_video(tmp_path / "disc.avi", frames, FPS)
+    record, small = ingest(video, (64, 80), tmp_path / "frames.npy")
+    scanned = scan(video)
+    assert scanned.count == record.frames == 12
+    seq = sampled(scanned, (64, 80), [3, 7])
+    written = np.load(tmp_path / "frames.npy")
+    for i in (0, 3, 7):
+        np.testing.assert_array_equal(seq.frame(i), written[i])
+    np.testing.assert_array_equal(seq.region, small)
+    assert seq.num_frames == 12 and seq.pixel_aspect == pytest.approx(
+        (64 / record.crop["height"]) / (80 / record.crop["width"]))
+    with pytest.raises(KeyError):
+        seq.frame(8)
 
 
 def test_ingest_resizes_the_region_by_pixel_centres(tmp_path):
@@ -1396,3 +1424,21 @@ def test_eval_summary_by_hand():
     one = summarise(rows[:1])
     assert one["learned"]["mae"] == pytest.approx(0.3)
     assert one["learned"]["mae_ci95"] is None and one["branch_agreement_ci95"] is None
+
+
+def test_eval_leaves_out_a_procedure_whose_lens_is_not_told(procedure, tmp_path):
+    """200 frames hold fewer than the 3 stretches of 120 that must agree: the lens is not told,
+    the procedure is left out, and with none left nothing is scored. The lens given and the
+    lens told together are refused up front."""
+    result = runner.invoke(app, ["eval", "--data", str(procedure.path), "--out",
+                                 str(tmp_path / "eval"), "--find-lens"])
+    message = assert_input_error(result, "every procedure was left out")
+    assert (f"{procedure.path}: its lens could not be told from the video (200 frames hold "
+            f"fewer than 3 stretches of 120: not mapped)") in message
+    work = tmp_path / "eval" / f"{procedure.path.parent.name}-{procedure.path.name}"
+    assert json.loads((work / W.LENS).read_text())["lens"] is None
+    assert not (work / W.INGEST).exists() and not (tmp_path / "eval" / "eval.json").exists()
+    result = runner.invoke(app, ["eval", "--data", str(procedure.path), "--out",
+                                 str(tmp_path / "both"), "--find-lens", "--known-lens"])
+    assert "give either --known-lens or --find-lens" in assert_input_error(result, "")
+    assert not (tmp_path / "both").exists()

@@ -16,19 +16,21 @@ from tube_scene import FOCAL, HEIGHT, MASK, WIDTH, pose_at, render, wall_texture
 from typer.testing import CliRunner
 
 from fusion.self_calibration import (
+    FoundLens,
     SelfCalibration,
     SelfCalibrationConfig,
     Stretch,
     _turn,
     contrast_enhanced,
     eval_records,
+    half_angle,
     highlight_free,
     self_calibrate,
     stretch_starts,
 )
-from fusion.sfm_baseline import run_sfm
+from fusion.sfm_baseline import CAMERA_MODEL, FISHEYE_MODEL, run_sfm
 from hybrid.cli import app
-from hybrid.pipeline import Models, RunConfig, _Run, run_video, video_features
+from hybrid.pipeline import LensNotFound, Models, RunConfig, _Run, run_video, video_features
 from hybrid.types import InputError
 from learned.checkpoint import save_checkpoint
 from learned.config import coverage_config
@@ -164,7 +166,9 @@ def test_a_video_too_short_for_two_stretches_is_not_mapped():
                                     dict(contrast=-1), dict(contrast_tiles=0),
                                     dict(min_field_of_view=-1), dict(min_field_of_view=180),
                                     dict(initial_field_of_view=-1),
-                                    dict(initial_field_of_view=180)])
+                                    dict(initial_field_of_view=180),
+                                    dict(camera_model="OPENCV"),
+                                    dict(camera_model=FISHEYE_MODEL)])
 def test_a_config_that_cannot_work_is_refused(fields):
     with pytest.raises(InputError, match="self-calibration needs"):
         SelfCalibrationConfig(**fields)
@@ -216,23 +220,27 @@ def test_stretches_mapped_in_parallel_processes_are_those_mapped_in_one(tube_fra
     assert len(alone.mapped) == 2
 
 
-@pytest.mark.parametrize("highlights, start", [(False, 0.0), (True, 120.0)])
-def test_highlights_and_the_start_reach_the_mapper(highlights, start, tube_frames, monkeypatch):
+@pytest.mark.parametrize("highlights, start, model", [(False, 0.0, CAMERA_MODEL),
+                                                      (True, 120.0, FISHEYE_MODEL)])
+def test_highlights_the_start_and_the_camera_reach_the_mapper(highlights, start, model,
+                                                               tube_frames, monkeypatch):
     """With the option each frame's mask is the image region off its highlights; without it,
     none. (The tube's grey texture of full contrast is not tissue: the top-hat takes 45% of
     it, so this checks the masks, not the map.) A start of 0 is COLMAP's own (None)."""
     given = []
 
-    def recorded(images, mask, work, name, frame_masks, initial_field_of_view):
-        given.append((frame_masks, initial_field_of_view))
-        return run_sfm(images, mask, work, name, frame_masks, initial_field_of_view)
+    def recorded(images, mask, work, name, frame_masks, initial_field_of_view, camera_model):
+        given.append((frame_masks, initial_field_of_view, camera_model))
+        return run_sfm(images, mask, work, name, frame_masks, initial_field_of_view,
+                       camera_model)
 
     monkeypatch.setattr("fusion.self_calibration.run_sfm", recorded)
     frames = tube_frames[:12]
     config = SelfCalibrationConfig(windows=1, length=12, min_agreeing=1, highlights=highlights,
-                                   initial_field_of_view=start)
+                                   initial_field_of_view=start, camera_model=model)
     self_calibrate(frames.__getitem__, 12, MASK, "tube", config=config)
-    ((masks, initial),) = given
+    ((masks, initial, camera),) = given
+    assert camera == model
     if highlights:
         np.testing.assert_array_equal(masks, [MASK & highlight_free(f) for f in frames])
         assert initial == 120.0
@@ -482,3 +490,140 @@ def test_a_run_gives_view_hidden_networks_the_self_calibrated_field_of_view(tmp_
     assert np.abs(features - runs["hidden"][0]).max() > 1e-3  # the input reaches the network
     assert runs["hidden"][2] is None
     assert not (tmp_path / "hidden" / "self_calibration.json").exists()
+
+
+LENS_SEARCH = SelfCalibrationConfig(min_field_of_view=0, camera_model=FISHEYE_MODEL,
+                                    initial_field_of_view=120)
+
+
+def lens_search(*stretches: tuple[float, float | None, float | None],
+                config: SelfCalibrationConfig = LENS_SEARCH) -> SelfCalibration:
+    """From (fraction placed, f, k) per stretch, mapped with the fisheye camera, at 128x160
+    with square pixels."""
+    return SelfCalibration(600, [Stretch(120 * i, 120, r, f, k=k)
+                                 for i, (r, f, k) in enumerate(stretches)],
+                           config, (128, 160), 1.0)
+
+
+@pytest.mark.parametrize("model, ratio, k, angle", [
+    (CAMERA_MODEL, 1.0, 0.0, np.pi / 4),
+    (FISHEYE_MODEL, 1.2, 0.0, 1.2),  # equidistant: r = f θ
+    (FISHEYE_MODEL, np.tan(0.5), 1 / 3, 0.5037),  # tan θ = θ + θ³/3 + 2θ⁵/15 + ...
+    (FISHEYE_MODEL, 3.0, -0.2, float("nan")),  # θ - 0.2 θ³ never reaches 3 (at most 0.86)
+])
+def test_the_angle_of_a_ray_through_either_camera(model, ratio, k, angle):
+    assert half_angle(model, ratio, k) == pytest.approx(angle, abs=1e-4, nan_ok=True)
+
+
+def test_the_lens_is_the_largest_group_of_one_lens_whose_angles_agree():
+    """At 160 px wide, f = 80, 84, 88 px with k near 0 see 2 (80 / f) radians: 114.6, 109.1
+    and 104.2 degrees, within 15%; a pinhole-like stretch (k 0.5) and one placing too few
+    frames do not join them."""
+    found = lens_search((1.0, 80.0, 0.01), (1.0, 50.0, 0.5), (0.9, 84.0, -0.02), (0.2, 84.0, 0.0),
+                        (1.0, 88.0, 0.03))
+    assert found.record()["agreeing"] == [0, 240, 480]
+    # The median of the three angles, each from its own f and k.
+    middle = np.degrees(2 * half_angle(FISHEYE_MODEL, 80 / 84, -0.02))
+    assert found.lens == FoundLens("equidistant", pytest.approx(middle))
+    assert found.describe().startswith(f"equidistant, {middle:.0f} degrees across the width")
+    record = found.record()
+    assert "K" not in record and record["lens"] == {"model": "equidistant",
+                                                    "width_deg": found.lens.width_deg}
+    assert SelfCalibration.from_record(record).lens == found.lens
+    with pytest.raises(ValueError, match="give a lens, not a K"):
+        _ = found.K
+    with pytest.raises(ValueError, match="give a K, not a lens"):
+        _ = calibration((1.0, 60.0), (1.0, 61.0)).lens
+    with pytest.raises(ValueError, match="mapped with SIMPLE_RADIAL_FISHEYE read as mapped with "
+                                         "SIMPLE_PINHOLE"):
+        SelfCalibration.from_record(record, SelfCalibrationConfig())
+
+
+def test_a_stretch_whose_k_reaches_no_edge_does_not_count_and_is_named():
+    """With k = -0.39 (as a CVC sequence mapped) θ - 0.39 θ³ never exceeds 0.616: at f = 80 px
+    no ray lands at the edge of the 160-px width, so the stretch gives no angle."""
+    found = lens_search((1.0, 80.0, -0.39), (1.0, 80.0, 0.0), (1.0, 82.0, 0.01),
+                        config=replace(LENS_SEARCH, min_field_of_view=60))
+    assert [s.start for s in found.mapped] == [120, 240]
+    assert found.lens.model == "equidistant"
+    assert ("the stretches from frames [0] mapped with a k that sends no ray to the frames' "
+            "edge, and do not count (per stretch: first frame, fraction placed, k, degrees "
+            "across the width: [(0, 1.0, -0.39, None), ") in found.describe()
+    assert "too narrow" not in found.describe()
+
+
+def test_a_pinhole_is_told_whatever_its_angles_and_equal_groups_of_the_two_lenses_tell_none():
+    """The run reads a pinhole as it is: its stretches need not agree on the angle (here 116.7
+    and 85.8 degrees)."""
+    pinhole = lens_search((1.0, 50.0, 0.55), (1.0, 80.0, 0.6), (1.0, 80.0, 0.0))
+    assert pinhole.lens.model == "pinhole"
+    assert [s.start for s in pinhole.agreeing] == [0, 120]
+    tie = lens_search((1.0, 50.0, 0.55), (1.0, 52.0, 0.6), (1.0, 80.0, 0.0), (1.0, 81.0, 0.0))
+    assert tie.agreeing == [] and tie.lens is None
+    assert tie.describe().startswith("no consensus (per stretch: first frame, fraction placed, "
+                                     "k, degrees across the width: [(0, 1.0, 0.55, ")
+
+
+@pytest.mark.parametrize("lens", ["equidistant", "pinhole"])
+def test_the_lens_of_the_tube_is_told_from_its_frames(lens):
+    """Two stretches of the tube filmed through an equidistant lens of f = 80 px, which sees
+    2 (80 / 80) radians = 114.6 degrees across the 160-px width, or through a pinhole."""
+    texture = wall_texture()
+    frames = [render(pose_at(i), texture, lens) for i in range(48)]
+    config = replace(LENS_SEARCH, windows=2, length=24, min_agreeing=2)
+    found = self_calibrate(frames.__getitem__, len(frames), MASK, "tube", config=config)
+    assert found.lens.model == lens
+    assert all(s.k is not None for s in found.stretches)
+    if lens == "equidistant":
+        assert found.lens.width_deg == pytest.approx(np.degrees(2.0), rel=0.05)
+
+
+def test_a_run_that_tells_the_lens_resamples_a_fisheye_and_refuses_a_video_it_cannot_tell(
+        tmp_path, tube_checkpoint):
+    """`RunConfig.find_lens` on 72 frames of the tube (three stretches of 24, two of which
+    must agree; the coverage networks' travel cue needs more than 64 frames):
+    through the equidistant lens the ingestion resamples at the angle found (114.6 degrees
+    across the width, the crop being the whole frame); through a pinhole it reads the frames
+    as they are; on blank frames it refuses before ingesting, and again on resuming."""
+    coverage = tmp_path / "coverage.safetensors"
+    torch.manual_seed(0)
+    CoverageModel(coverage_config("fast")).save(coverage)
+    search = replace(LENS_SEARCH, windows=3, length=24, min_agreeing=2)
+    config = RunConfig(depth_checkpoint=str(tube_checkpoint), coverage_checkpoint=str(coverage),
+                       segment_seconds=1.0, find_lens=True, lens_search=search)
+    models = Models.load(config)
+    texture = wall_texture()
+    for lens in ("equidistant", "pinhole"):
+        folder = write_frames(tmp_path / lens, [render(pose_at(i), texture, lens)
+                                                for i in range(72)])
+        work, notes = tmp_path / f"{lens}-run", []
+        if lens == "equidistant":  # the whole run, which says what it found
+            run_video(folder, work, config, models, progress=False, echo=notes.append)
+            assert (work / "report.html").is_file()
+        else:
+            video_features(folder, work, config, models, progress=False)
+        ingested = json.loads((work / "ingest.json").read_text())
+        found = json.loads((work / "lens.json").read_text())["lens"]
+        assert found["model"] == lens
+        if lens == "equidistant":
+            assert f"note: the lens told from the video: equidistant, " \
+                   f"{found['width_deg']:.0f} degrees across the width" in "\n".join(notes)
+            assert ingested["fisheye_fov_deg"] == found["width_deg"]
+            assert found["width_deg"] == pytest.approx(np.degrees(2.0), rel=0.05)
+            intrinsics = json.loads((work / "intrinsics.json").read_text())
+            assert intrinsics["resampled_from_fisheye_fov_deg"] == found["width_deg"]
+        else:
+            assert ingested["fisheye_fov_deg"] is None
+    folder = write_frames(tmp_path / "grey", [GREY] * 72)
+    for _ in range(2):
+        with pytest.raises(LensNotFound, match=r"grey: its lens could not be told from the "
+                                               r"video \(no consensus .*\); give --fisheye-fov"):
+            video_features(folder, tmp_path / "grey-run", config, models, progress=False)
+        assert (tmp_path / "grey-run" / "lens.json").is_file()
+        assert not (tmp_path / "grey-run" / "frames.npy").exists()
+    with pytest.raises(InputError, match="either the fisheye's field of view or --find-lens"):
+        RunConfig(find_lens=True, fisheye_fov_deg=120.0)
+    with pytest.raises(InputError, match="the lens is told by the fisheye camera"):
+        RunConfig(find_lens=True, lens_search=SelfCalibrationConfig())
+    with pytest.raises(InputError, match="the self-calibration's K is a pinhole's"):
+        RunConfig(self_calibrate=True, self_calibration=LENS_SEARCH)
