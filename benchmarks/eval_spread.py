@@ -7,9 +7,10 @@ lumen fitted to the reconstruction: all of it, at least half, less than half), a
 branches' 3-class agreement by the same bins. With --versus OTHER.json MODE OTHER_MODE, over
 the segments both files give a value for (procedures matched by folder name, which must then
 be unique in each file): in how many procedures MODE errs less or more than OTHER_MODE of the
-other file, and the difference of their MAEs with a 95% interval bootstrapped over those
-procedures as `c2d2 eval` does (paired: the same procedures are drawn for both); for two
-`c2d2 eval` files, also the segments whose branches agree in one and not in the other.
+other file, the difference of their MAEs with a 95% interval bootstrapped over those
+procedures as `c2d2 eval` does (paired: the same procedures are drawn for both), and both
+MAEs; for two `c2d2 eval` files, also both files' agreement of the branches over the
+segments they share, and the segments whose branches agree in one and not in the other.
 
 Reads the eval.json of `c2d2 eval` (branches learned, geometric and the report's combined
 coverage), the geometric_eval.json of benchmarks/geometric_eval.py (each of its modes) or the
@@ -152,12 +153,13 @@ def segment_errors(rows: list[Row]) -> dict[str, dict[int, float]]:
 
 def print_versus(rows: list[Row], other: list[Row], label: str) -> None:
     """Over the segments both have: in how many procedures the rows err less, more or the
-    same, and the paired difference of the MAEs with its bootstrap interval."""
+    same, the paired difference of the MAEs with its bootstrap interval, and both MAEs."""
     mine, theirs = segment_errors(rows), segment_errors(other)
-    diffs = [np.array([mine[name][k] - theirs[name][k]
-                       for k in sorted(mine[name].keys() & theirs[name].keys())])
+    pairs = [np.array([(mine[name][k], theirs[name][k])
+                       for k in sorted(mine[name].keys() & theirs[name].keys())]).reshape(-1, 2)
              for name in sorted(mine.keys() & theirs.keys())]
-    diffs = [d for d in diffs if d.size]
+    pairs = [p for p in pairs if p.size]
+    diffs = [p[:, 0] - p[:, 1] for p in pairs]
     if not diffs:
         print(f"{label}: no segment has a value in both")
         return
@@ -171,20 +173,28 @@ def print_versus(rows: list[Row], other: list[Row], label: str) -> None:
     print(f"{'':13s} MAE difference over the {sum(d.size for d in diffs)} segments both "
           f"give: {np.mean(np.concatenate(diffs)):+.4f}{interval} (95%, bootstrapped over "
           f"{len(diffs)} procedures)")
+    both = np.concatenate(pairs)
+    print(f"{'':13s} their MAE: {both[:, 0].mean():.4f}, the other's {both[:, 1].mean():.4f}")
 
 
 def print_agreement_changes(segments: list[dict], other: list[dict]) -> None:
-    """The segments (matched as in --versus) whose branches agree in one c2d2 eval file and
-    not in the other, with both files' values."""
+    """Both c2d2 eval files' agreement of the branches over the segments they share (matched
+    as in --versus), and the segments whose branches agree in one and not in the other, with
+    both files' values."""
     def agree(s: dict) -> bool | None:
         if s["learned"] is None or s["geometric"] is None:
             return None
         return bool(three_class(s["learned"]) == three_class(s["geometric"]))
 
     theirs = {(Path(s["procedure"]).name, s["segment"]): s for s in other}
-    changed = [(s, theirs[key]) for s in segments
+    matched = [(s, theirs[key]) for s in segments
                if (key := (Path(s["procedure"]).name, s["segment"])) in theirs
-               and None not in (agree(s), agree(theirs[key])) and agree(s) != agree(theirs[key])]
+               and None not in (agree(s), agree(theirs[key]))]
+    if matched:
+        print(f"agreement over the {len(matched)} segments where both give both branches: "
+              f"{np.mean([agree(s) for s, _ in matched]):.3f}, the other's "
+              f"{np.mean([agree(t) for _, t in matched]):.3f}")
+    changed = [(s, t) for s, t in matched if agree(s) != agree(t)]
     print(f"agreement changed in {len(changed)} segments: "
           f"{sum(agree(s) for s, _ in changed)} now agree, "
           f"{sum(not agree(s) for s, _ in changed)} no longer")

@@ -139,7 +139,8 @@ FISHEYE_BELOW = 0.2
 """A stretch mapped with the fisheye camera whose k is below this reads as an equidistant
 fisheye, one at or above it as a pinhole: between the one's 0 and the other's 1/3 or more
 (measured: |k| <= 0.07 on 36 fisheye stretches, k > 0.45 on 28 pinhole ones, `docs/depth.md`,
-"Telling the lens from the video")."""
+"Telling the lens from the video"; but on dim video two fisheye stretches read 0.33 and 0.40,
+`docs/pipeline.md`, "Telling the lens from the video: `--find-lens`")."""
 
 
 def half_angle(model: str, ratio: float, k: float = 0.0) -> float:
