@@ -582,7 +582,7 @@ def run_video(source: Path, out: Path, config: RunConfig = RunConfig(),
                     f" ({run.ingested.frames / max(timing[name], 1e-9):.0f} frames/s)")
             echo(f"{name}: {timing[name]:.1f} s{rate}")
         if name == "lens":
-            echo(f"note: the lens told from the video: {run.lens_found().describe()}")
+            echo(f"note: the lens from the video: {run.lens_found().describe()}")
         if name == "ingest":
             run.check_length()
     warnings = []

@@ -606,7 +606,7 @@ def test_a_run_that_tells_the_lens_resamples_a_fisheye_and_refuses_a_video_it_ca
         found = json.loads((work / "lens.json").read_text())["lens"]
         assert found["model"] == lens
         if lens == "equidistant":
-            assert f"note: the lens told from the video: equidistant, " \
+            assert f"note: the lens from the video: equidistant, " \
                    f"{found['width_deg']:.0f} degrees across the width" in "\n".join(notes)
             assert ingested["fisheye_fov_deg"] == found["width_deg"]
             assert found["width_deg"] == pytest.approx(np.degrees(2.0), rel=0.05)
