@@ -1,13 +1,14 @@
-"""Can structure from motion tell an endoscope's lens from its video? A probe for a
-calibration-free `--fisheye-fov`.
+"""Can structure from motion tell an endoscope's lens from its video? The probe behind
+`c2d2 run --find-lens` (whose rule `benchmarks/find_lens.py` applies).
 
 Each stretch of frames (as the depth network sees them, at the self-calibration's stretches,
-contrast step and square pixels: `fusion.self_calibration`) is mapped by pycolmap with
-COLMAP's SIMPLE_RADIAL_FISHEYE camera, r = f (θ + k θ³) (k = 0: the equidistant lens of
-`c2d2 simulate --fisheye`; a pinhole, r = f tan θ, reads as k near 1/3 over small angles, more
-over wide ones). Printed per stretch: frames placed, f and k, the angle across the width they
-give, and the camera's true model and angle (camera.json); then per lens, over the stretches
-that placed at least half their frames, the median k and the angle's error.
+contrast step and square pixels: `fusion.self_calibration.calibrate_sequence`) is mapped by
+pycolmap with COLMAP's SIMPLE_RADIAL_FISHEYE camera, r = f (θ + k θ³) (k = 0: the
+equidistant lens of `c2d2 simulate --fisheye`; a pinhole, r = f tan θ, reads as k near 1/3
+over small angles, more over wide ones). Printed per stretch: frames placed, f and k, the
+angle across the width they give, and the camera's true model and angle (camera.json); then
+per lens, over the stretches that placed at least half their frames, the median k and the
+angle's error.
 
     python benchmarks/lens_from_sfm.py --data data/heldout-fisheye data/heldout \
         --procedures 6 --stretches 3 --workers 2
@@ -16,45 +17,18 @@ that placed at least half their frames, the median k and the angle's error.
 from __future__ import annotations
 
 import argparse
-import tempfile
-from concurrent.futures import ProcessPoolExecutor
-from multiprocessing import get_context
 from pathlib import Path
 
 import numpy as np
 
-from fusion.self_calibration import (
-    SelfCalibrationConfig,
-    SquarePixels,
-    contrast_enhanced,
-    half_angle,
-    stretch_starts,
-)
-from fusion.sfm_baseline import CAMERA_MODEL, FISHEYE_MODEL, NoModel, run_sfm
+from fusion.self_calibration import SelfCalibrationConfig, calibrate_sequence
+from fusion.sfm_baseline import CAMERA_MODEL, FISHEYE_MODEL
 from hybrid.dataset import list_procedures
 from learned.config import DEPTH_PRESETS
 from learned.frames import open_sequence
 
 _SIZE = (DEPTH_PRESETS["fast"].height, DEPTH_PRESETS["fast"].width)
 """The frames' size: the shipped depth network's."""
-
-
-def map_stretch(name: str, start: int, images: list[np.ndarray], mask: np.ndarray,
-                scale: float, model: str, start_fov: float) -> dict:
-    """One stretch's square-pixel frames mapped with the COLMAP camera `model`; `scale` takes
-    the mapper's pixels to the frames' x pixels, in which f is given."""
-    row = {"procedure": name, "start": start, "placed": 0.0}
-    with tempfile.TemporaryDirectory() as work:
-        try:
-            sfm = run_sfm(images, mask, Path(work), f"{name} {start}",
-                          initial_field_of_view=start_fov, camera_model=model)
-        except NoModel:
-            return row
-    f, k = sfm.camera_params[0], (sfm.camera_params[3] if len(sfm.camera_params) > 3 else 0.0)
-    row.update(placed=float(sfm.registered.mean()), f=float(f) * scale, k=float(k),
-               angle=float(np.degrees(2 * half_angle(model, mask.shape[1] / 2 / f, k))),
-               reprojection_error=sfm.reprojection_error)
-    return row
 
 
 def inputs_parser(description: str, procedures: int | None) -> argparse.ArgumentParser:
@@ -88,31 +62,24 @@ def main() -> None:
                              "needs)")
     args = parser.parse_args()
     truth = true_lenses(args)
-    layout = SelfCalibrationConfig(windows=args.stretches, length=args.length, min_agreeing=1)
-    with ProcessPoolExecutor(args.workers, get_context("spawn")) as pool:
-        jobs = []
-        for path in [*map(Path, truth), *args.inputs]:
-            seq = open_sequence(path, _SIZE)  # once: a video is decoded here
-            square = SquarePixels(seq.size, seq.pixel_aspect)
-            for start in stretch_starts(seq.num_frames, layout):
-                ids = range(start, min(start + args.length, seq.num_frames))
-                images = [square(contrast_enhanced(seq.frame(i), layout)) for i in ids]
-                jobs.append(pool.submit(map_stretch, str(path), start, images,
-                                        square.mask(seq.region), square.scale[0], args.model,
-                                        args.initial_fov))
-        rows = [job.result() for job in jobs]
+    config = SelfCalibrationConfig(windows=args.stretches, length=args.length, min_agreeing=1,
+                                   camera_model=args.model,
+                                   initial_field_of_view=args.initial_fov)
     by_lens: dict[str, list[tuple[float, float]]] = {}
-    for row in rows:
-        lens, angle = truth.get(row["procedure"], ("unknown", float("nan")))
+    for path in [*map(Path, truth), *args.inputs]:
+        found = calibrate_sequence(open_sequence(path, _SIZE), config, workers=args.workers)
+        lens, angle = truth.get(str(path), ("unknown", float("nan")))
         known = f"true: {lens}, {angle:.1f} deg"
-        if "f" not in row:
-            print(f"{row['procedure']} {row['start']}: no model ({known})")
-            continue
-        print(f"{row['procedure']} {row['start']}: placed {row['placed']:.2f} f {row['f']:.1f} "
-              f"k {row['k']:+.3f} angle {row['angle']:.1f} ({known}) "
-              f"reprojection {row['reprojection_error']:.2f} px", flush=True)
-        if row["placed"] >= 0.5:
-            by_lens.setdefault(lens, []).append((row["k"], row["angle"] - angle))
+        for s in found.stretches:
+            if s.fx is None:
+                print(f"{path} {s.start}: no model ({known})")
+                continue
+            k = s.k or 0.0  # the pinhole camera's is 0
+            print(f"{path} {s.start}: placed {s.registered:.2f} f {s.fx:.1f} k {k:+.3f} angle "
+                  f"{found.width_angle(s):.1f} ({known}) reprojection "
+                  f"{s.reprojection_error:.2f} px", flush=True)
+            if s in found.placed:
+                by_lens.setdefault(lens, []).append((k, found.width_angle(s) - angle))
     for lens, values in by_lens.items():
         k, error = np.array(values).T
         angle = ("" if lens == "unknown" else f"; angle error median {np.median(error):+.1f}, "

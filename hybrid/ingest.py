@@ -102,7 +102,6 @@ class _Source:
 class Scanned:
     """An input read once: its frames counted, its image region and the region's box."""
 
-    path: Path
     source: _Source
     count: int
     region: np.ndarray
@@ -136,7 +135,7 @@ def scan(path: Path, region: np.ndarray | None = None, fps: float | None = None,
                 [np.repeat(brightest[..., None], 3, axis=2)])
         except InputError as err:
             raise InputError(f"{path}: {err}") from err
-    return Scanned(Path(path), source, count, region, Crop.of(region, shape, str(path)))
+    return Scanned(source, count, region, Crop.of(region, shape, str(path)))
 
 
 def sampled(scanned: Scanned, size: tuple[int, int], indices: Iterable[int]) -> FrameSequence:
@@ -151,7 +150,7 @@ def sampled(scanned: Scanned, size: tuple[int, int], indices: Iterable[int]) -> 
         if len(frames) == len(wanted):
             break
     if len(frames) != len(wanted):
-        raise InputError(f"{scanned.path}: the second reading ended before frame "
+        raise InputError(f"{scanned.source.name}: the second reading ended before frame "
                          f"{min(wanted - frames.keys())} of the {scanned.count} the first "
                          f"counted; the file changed or decodes unreliably: copy or re-encode it")
     return FrameSequence(scanned.source.name, scanned.source.fps, size, frames.__getitem__,
