@@ -33,7 +33,13 @@ AdaptSteps = Annotated[int, typer.Option(min=0, help="First adapt the depth mode
                                          "on that input's frames (0: off; about 1 s a step "
                                          "on 2 CPU cores). Not reliable: it made the depth of "
                                          "some held-out videos much worse (docs/depth.md, "
-                                         "'Adapting to the video').")]
+                                         "'Adapting to the video'); an input the model reads "
+                                         "as dim and noisy is not adapted to (--adapt-noisy).")]
+AdaptNoisy = Annotated[bool, typer.Option(
+    help="With --adapt-steps: adapt to an input even where the depth model's photometric error "
+    "on it marks it as dim and noisy (above learned.adapt.NOISY), as on every (dusk) "
+    "simulated video where adapting made the depth worse; without it such an input keeps the "
+    "model's own depth, with a warning.")]
 SelfCalibrate = Annotated[bool, typer.Option(
     "--self-calibrate", help="Take K from structure from motion on up to 5 stretches of 120 "
     "frames (fusion/self_calibration.py; 1-4 minutes a video on 2 CPU cores) instead of the "
@@ -491,6 +497,7 @@ def depth(
     fps: Annotated[float | None, typer.Option(help="Frame rate, if the video's is missing or "
                                               "wrong (image folders: 30).")] = None,
     adapt_steps: AdaptSteps = 0,
+    adapt_noisy: AdaptNoisy = False,
     self_calibrate: SelfCalibrate = False,
     contrast: Contrast = None,
     device: Device = "auto",
@@ -503,13 +510,14 @@ def depth(
     from learned.model import load_depth_model
 
     _check_contrast(contrast, self_calibrate)
+    _check_noisy(adapt_noisy, adapt_steps)
     checkpoint, device = checkpoint or _shipped_checkpoint(), pick_device(device)
     model = load_depth_model(checkpoint, device=device)
     seq = open_sequence(input, (model.config.height, model.config.width), _read_mask(mask), fps)
     calibration = _self_calibration(seq, contrast) if self_calibrate else None
     if adapt_steps:
         model = adapt_depth_model(checkpoint, model.config, seq, out / "adapted", adapt_steps,
-                                  True, device)
+                                  True, device, adapt_noisy).model
     infer_to_folder(model, seq, out, progress=True, calibration=calibration)
     typer.echo(str(out))
 
@@ -528,6 +536,12 @@ def _self_calibration(seq: FrameSequence, contrast: float | None) -> SelfCalibra
         typer.echo(f"warning: {seq.name}: self-calibration gave no K, so the intrinsics head's "
                    f"is kept: {found.describe()}", err=True)
     return found
+
+
+def _check_noisy(adapt_noisy: bool, adapt_steps: int) -> None:
+    """--adapt-noisy only with --adapt-steps."""
+    if adapt_noisy and not adapt_steps:
+        raise InputError("--adapt-noisy forces an adaptation: give --adapt-steps too")
 
 
 def _check_contrast(contrast: float | None, self_calibrate: bool) -> None:
@@ -549,6 +563,7 @@ def eval_depth(
     adapt_dir: Annotated[Path | None, typer.Option(help="Keep the adapted models here, one "
                                                    "folder per procedure (resumable); default: "
                                                    "a temporary folder.")] = None,
+    adapt_noisy: AdaptNoisy = False,
     self_calibrate: SelfCalibrate = False,
     contrast: Contrast = None,
     device: Device = "auto",
@@ -568,6 +583,7 @@ def eval_depth(
 
     if adapt_dir is not None and not adapt_steps:
         raise InputError("--adapt-dir keeps adapted models: give --adapt-steps too")
+    _check_noisy(adapt_noisy, adapt_steps)
     if out is not None and not out.parent.is_dir():
         raise InputError(f"folder for --out does not exist: {out.parent}")
     _check_contrast(contrast, self_calibrate)
@@ -581,19 +597,24 @@ def eval_depth(
     with tempfile.TemporaryDirectory() as scratch:
         for name, path in zip(names, paths, strict=True):
             seq = open_sequence(path, size)
-            read = model if not adapt_steps else adapt_depth_model(
+            adaptation = None if not adapt_steps else adapt_depth_model(
                 checkpoint, model.config, seq, Path(adapt_dir or scratch) /
-                name.replace("/", "-"), adapt_steps, True, device)
+                name.replace("/", "-"), adapt_steps, True, device, adapt_noisy)
+            read = model if adaptation is None else adaptation.model
             calibration = _self_calibration(seq, contrast) if self_calibrate else None
             results[name] = evaluate_sequence(read, seq, frames,
                                               K=None if calibration is None else calibration.K)
+            if adaptation is not None:
+                results[name].update(photometric_error=adaptation.photometric_error,
+                                     adapted=float(adaptation.adapted))
             if calibration is not None:
                 results[name]["self_calibrated"] = float(calibration.K is not None)
                 stretches[name] = calibration.record()
     summary = summarise(results)
     keys = DEPTH_KEYS + ("fx_rel", "fy_rel", "cx_rel", "cy_rel", "ate", "rpe_translation",
                          "rpe_rotation_deg") + (("fx_head_rel", "self_calibrated")
-                                                if self_calibrate else ())
+                                                if self_calibrate else ()) + (
+        ("photometric_error", "adapted") if adapt_steps else ())
     width = max(14, *map(len, names))
     columns = [max(9, len(k)) for k in keys]
     typer.echo(f"{'procedure':{width}s} " + " ".join(f"{k:>{c}s}" for k, c in zip(

@@ -1,6 +1,7 @@
 """learned.adapt: adapting the depth model to one video lowers its own loss on that video; a
-folder of another adaptation is refused, and a low frame rate's chain term fits; `eval-depth`
-scores and `depth` writes the adapted model when asked."""
+folder of another adaptation is refused, and a low frame rate's chain term fits; a video the
+model reads as noisy is not adapted to unless forced; `eval-depth` scores and `depth` writes
+the adapted model when asked."""
 
 from __future__ import annotations
 
@@ -13,10 +14,12 @@ import torch
 from conftest import TINY
 from typer.testing import CliRunner
 
+import learned.adapt
 from hybrid.cli import app
 from hybrid.types import InputError
-from learned.adapt import adapt_depth_model, adaptation_config
+from learned.adapt import NOISY, adapt_depth_model, adaptation_config, photometric_error
 from learned.checkpoint import export_weights, file_tag
+from learned.checkpoints import SHIPPED_DEPTH
 from learned.evaluate import evaluate_sequence
 from learned.frames import FrameSequence, open_sequence
 from learned.model import load_depth_model, to_tensor
@@ -48,19 +51,21 @@ def clip_loss(model, clip) -> float:
 def test_adapting_lowers_the_loss_on_the_video(start, clip, tmp_path):
     seq = open_sequence(clip, (TINY.height, TINY.width))
     before = clip_loss(load_depth_model(start), clip)
-    adapted = adapt_depth_model(start, TINY, seq, tmp_path / "adapted", steps=15)
+    adapted = adapt_depth_model(start, TINY, seq, tmp_path / "adapted", steps=15,
+                                force=True).model
     after = clip_loss(adapted, clip)
     # Deterministic evaluations (fixed batches and noise), so the drop is the adaptation's.
     assert after < 0.95 * before, (before, after)
     record = json.loads((tmp_path / "adapted" / "adapted_to.json").read_text())
     assert record == {"input": str(clip.resolve()), "frames": seq.num_frames,
                       "model": file_tag(start), "steps": 15, "fps": seq.fps,
-                      "crop": asdict(seq.crop)}
+                      "crop": asdict(seq.crop), "adapted": True,
+                      "photometric_error": photometric_error(load_depth_model(start), seq)}
 
 
 def test_a_folder_of_another_adaptation_is_refused(start, clip, tmp_path):
     seq = open_sequence(clip, (TINY.height, TINY.width))
-    adapt_depth_model(start, TINY, seq, tmp_path / "adapted", steps=1)
+    adapt_depth_model(start, TINY, seq, tmp_path / "adapted", steps=1, force=True)
     other_input = FrameSequence("other", seq.fps, seq.size, seq.frame, seq.num_frames,
                                 region=seq.region, crop=seq.crop)
     other_model = tmp_path / "other.safetensors"
@@ -70,12 +75,13 @@ def test_a_folder_of_another_adaptation_is_refused(start, clip, tmp_path):
     for args in ((start, other_input, 1), (start, seq, 2), (other_model, seq, 1),
                  (start, slower, 1)):
         with pytest.raises(InputError, match="another number of steps"):
-            adapt_depth_model(args[0], TINY, args[1], tmp_path / "adapted", steps=args[2])
+            adapt_depth_model(args[0], TINY, args[1], tmp_path / "adapted", steps=args[2],
+                              force=True)
     # a folder made before the frame rate and crop were recorded is still taken as it is
     made = tmp_path / "adapted" / "adapted_to.json"
     made.write_text(json.dumps({k: v for k, v in json.loads(made.read_text()).items()
                                 if k not in ("fps", "crop")}))
-    adapt_depth_model(start, TINY, seq, tmp_path / "adapted", steps=1)
+    adapt_depth_model(start, TINY, seq, tmp_path / "adapted", steps=1, force=True)
     with pytest.raises(InputError, match="at least 1 step"):
         adapt_depth_model(start, TINY, seq, tmp_path / "zero", steps=0)
     with pytest.raises(InputError, match=r"other: frames of \(64, 96\), the model takes"):
@@ -93,7 +99,8 @@ def test_a_model_trained_with_maps_adapts_without_them(start, clip, tmp_path):
     assert (adapted.maps, adapted.w_map, adapted.w_map_motion, adapted.map_zoom) == (
         "", 0.0, 0.0, False)
     assert (adapted.photo_blur, adapted.photo_blur_on) == (0.0, "all")
-    model = adapt_depth_model(start, config, seq, tmp_path / "adapted", steps=1)
+    model = adapt_depth_model(start, config, seq, tmp_path / "adapted", steps=1,
+                              force=True).model
     assert model.config.maps == ""
 
 
@@ -112,18 +119,22 @@ def test_eval_depth_and_depth_score_and_write_the_adapted_model(start, simulated
     out = tmp_path / "eval.json"
     result = CliRunner().invoke(app, [
         "eval-depth", "--data", str(simulated), "--checkpoint", str(start), "--frames", "2",
-        "--adapt-steps", "3", "--adapt-dir", str(tmp_path / "runs"), "--out", str(out)])
+        "--adapt-steps", "3", "--adapt-dir", str(tmp_path / "runs"), "--adapt-noisy",
+        "--out", str(out)])
     assert result.exit_code == 0, result.output
     written = json.loads(out.read_text())
     adapted = load_depth_model(tmp_path / "runs" / f"{simulated.parent.name}-{simulated.name}"
                                / "model.safetensors")
     seq = open_sequence(simulated, (TINY.height, TINY.width))
     assert written["adapt_steps"] == 3
-    assert list(written["procedures"].values()) == [evaluate_sequence(adapted, seq, 2)]
+    level = photometric_error(load_depth_model(start), seq)
+    assert list(written["procedures"].values()) == [
+        {**evaluate_sequence(adapted, seq, 2), "photometric_error": level, "adapted": 1.0}]
     assert evaluate_sequence(load_depth_model(start), seq, 2) != evaluate_sequence(adapted, seq,
                                                                                    2)
     result = CliRunner().invoke(app, ["depth", str(simulated), "--out", str(tmp_path / "depth"),
-                                      "--checkpoint", str(start), "--adapt-steps", "3"])
+                                      "--checkpoint", str(start), "--adapt-steps", "3",
+                                      "--adapt-noisy"])
     assert result.exit_code == 0, result.output
     with torch.no_grad():  # the same 3 steps, so the same model: its depth is what was written
         first = adapted.depth(to_tensor(seq.frame(0)[None], "cpu"))[0, 0].numpy()
@@ -131,7 +142,72 @@ def test_eval_depth_and_depth_score_and_write_the_adapted_model(start, simulated
                                rtol=1e-5)
 
 
-def test_eval_depth_refuses_an_adapt_dir_without_steps(start, simulated, tmp_path):
-    result = CliRunner().invoke(app, ["eval-depth", "--data", str(simulated), "--checkpoint",
-                                      str(start), "--adapt-dir", str(tmp_path)])
-    assert result.exit_code != 0 and "--adapt-steps" in result.stderr
+@pytest.mark.parametrize("command", [
+    ["eval-depth", "--data", "SIM", "--adapt-dir", "DIR"], ["eval-depth", "--data", "SIM",
+                                                            "--adapt-noisy"],
+    ["depth", "SIM", "--out", "DIR", "--adapt-noisy"]])
+def test_adaptation_options_without_steps_are_refused(command, start, simulated, tmp_path):
+    given = {"SIM": str(simulated), "DIR": str(tmp_path / "out")}
+    result = CliRunner().invoke(app, [given.get(a, a) for a in command]
+                                + ["--checkpoint", str(start)])
+    assert result.exit_code != 0 and "give --adapt-steps too" in result.stderr
+    assert not (tmp_path / "out").exists()
+
+
+def test_a_video_read_as_noisy_is_not_adapted_to_unless_forced(start, clip, tmp_path,
+                                                              monkeypatch):
+    seq = open_sequence(clip, (TINY.height, TINY.width))
+    level = photometric_error(load_depth_model(start), seq)
+    assert level == photometric_error(load_depth_model(start), seq) > 0  # fixed draws
+    monkeypatch.setattr(learned.adapt, "NOISY", level - 1e-6)
+    kept = adapt_depth_model(start, TINY, seq, tmp_path / "adapted", steps=2)
+    assert (kept.adapted, kept.photometric_error) == (False, level)
+    assert all(torch.equal(a, b) for a, b in zip(
+        kept.model.state_dict().values(), load_depth_model(start).state_dict().values(),
+        strict=True))
+    record = tmp_path / "adapted" / "adapted_to.json"
+    assert json.loads(record.read_text())["adapted"] is False
+    assert not (tmp_path / "adapted" / "checkpoint.safetensors").exists()
+    forced = adapt_depth_model(start, TINY, seq, tmp_path / "adapted", steps=2, force=True)
+    assert forced.adapted and json.loads(record.read_text())["adapted"] is True
+    assert clip_loss(forced.model, clip) != clip_loss(kept.model, clip)
+    monkeypatch.setattr(learned.adapt, "NOISY", level)  # at the bound it adapts
+    assert adapt_depth_model(start, TINY, seq, tmp_path / "other", steps=2).adapted
+    monkeypatch.setattr(learned.adapt, "NOISY", level - 1e-6)  # an adaptation begun goes on
+    assert adapt_depth_model(start, TINY, seq, tmp_path / "adapted", steps=2).adapted
+    assert json.loads(record.read_text())["adapted"] is True
+
+
+def test_the_commands_keep_a_noisy_video_unadapted_unless_told(start, simulated, tmp_path,
+                                                               monkeypatch, caplog):
+    seq = open_sequence(simulated, (TINY.height, TINY.width))
+    model = load_depth_model(start)
+    level = photometric_error(model, seq)
+    monkeypatch.setattr(learned.adapt, "NOISY", level - 1e-6)
+    out = tmp_path / "eval.json"
+    result = CliRunner().invoke(app, [
+        "eval-depth", "--data", str(simulated), "--checkpoint", str(start), "--frames", "2",
+        "--adapt-steps", "2", "--out", str(out)])
+    assert result.exit_code == 0, result.output
+    assert list(json.loads(out.read_text())["procedures"].values()) == [
+        {**evaluate_sequence(model, seq, 2), "photometric_error": level, "adapted": 0.0}]
+    assert "not adapted to" in caplog.text
+    result = CliRunner().invoke(app, ["depth", str(simulated), "--out", str(tmp_path / "depth"),
+                                      "--checkpoint", str(start), "--adapt-steps", "2"])
+    assert result.exit_code == 0, result.output
+    with torch.no_grad():  # the model's own depth, not an adapted one's
+        own = model.depth(to_tensor(seq.frame(0)[None], "cpu"))[0, 0].numpy()
+    np.testing.assert_allclose(np.load(tmp_path / "depth" / "depth" / "000000.npy"), own,
+                               rtol=1e-5)
+
+
+def test_the_shipped_model_reads_dusk_video_as_noisy_and_pink_not(sim_config, tmp_path):
+    """NOISY was set on the shipped model's training procedures; here a seed it never saw,
+    in both styles."""
+    from hybrid.sim.simulate import simulate_procedure
+
+    model = load_depth_model(SHIPPED_DEPTH)
+    levels = {style: photometric_error(model, open_sequence(
+        simulate_procedure(tmp_path / style, 11, 0, replace(sim_config, style=style)),
+        (model.config.height, model.config.width))) for style in ("pink", "dusk")}
+    assert levels["pink"] < NOISY < levels["dusk"], levels
