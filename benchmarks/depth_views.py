@@ -20,11 +20,11 @@ from pathlib import Path
 
 import numpy as np
 
-from hybrid.dataset import list_procedures
 from learned.evaluate import scored_depths
 from learned.frames import open_sequence
 from learned.metrics import dom, mre
 from learned.model import load_depth_model
+from learned.train import expand_inputs
 
 VIEWS = (1, 2, 4)
 
@@ -33,7 +33,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--models", type=Path, nargs="+", required=True)
     parser.add_argument("--data", type=Path, nargs="+", required=True,
-                        help="folders of simulated procedures")
+                        help="simulated procedures, or folders of them")
     parser.add_argument("--ensemble", action="store_true",
                         help="also score the models' ensemble at each number of views")
     parser.add_argument("--out", type=Path, required=True, help="JSON of the per-procedure figures")
@@ -43,7 +43,7 @@ def main() -> None:
     if len(sizes) != 1:
         parser.error(f"the models take different frame sizes: {sorted(sizes)}")
     size = sizes.pop()
-    procedures = [p.path for folder in args.data for p in list_procedures(folder)]
+    procedures = expand_inputs(args.data)
     rows: dict[str, dict[str, dict[str, float]]] = {}
     for path in procedures:
         seq = open_sequence(path, size)

@@ -30,11 +30,15 @@ Device = Annotated[str, typer.Option(envvar="C2D2_DEVICE",
                                     "sees one, else the CPU), cpu, cuda or cuda:N.")]
 AdaptSteps = Annotated[int, typer.Option(min=0, help="First adapt the depth model to each "
                                          "input by this many steps of its own training loss "
-                                         "on that input's frames (0: off; about 1 s a step "
-                                         "on 2 CPU cores). Not reliable: it made the depth of "
-                                         "some held-out videos much worse (docs/depth.md, "
-                                         "'Adapting to the video'); an input the model reads "
-                                         "as dim and noisy is not adapted to (--adapt-noisy).")]
+                                         "on that input's frames (0: off; 1-2 s a step on 2 "
+                                         "CPU cores), then read the geometric mean of the "
+                                         "adapted and the starting model's depth. Not "
+                                         "reliable: on held-out pink videos that depth was no "
+                                         "better than the model's own on average, and "
+                                         "adapting made the depth of dim, noisy videos much "
+                                         "worse (docs/depth.md, 'Adapting to the video'), so "
+                                         "an input the model reads as such is not adapted to "
+                                         "(--adapt-noisy).")]
 AdaptNoisy = Annotated[bool, typer.Option(
     help="With --adapt-steps: adapt to an input even where the depth model's photometric error "
     "on it marks it as dim and noisy (above learned.adapt.NOISY), as on every (dusk) "

@@ -1,7 +1,7 @@
 """learned.adapt: adapting the depth model to one video lowers its own loss on that video; a
 folder of another adaptation is refused, and a low frame rate's chain term fits; a video the
-model reads as noisy is not adapted to unless forced; `eval-depth` scores and `depth` writes
-the adapted model when asked."""
+model reads as noisy is not adapted to unless forced; the depth read is the adapted and the
+starting model's together (Blend); `eval-depth` scores and `depth` writes it when asked."""
 
 from __future__ import annotations
 
@@ -17,10 +17,16 @@ from typer.testing import CliRunner
 import learned.adapt
 from hybrid.cli import app
 from hybrid.types import InputError
-from learned.adapt import NOISY, adapt_depth_model, adaptation_config, photometric_error
+from learned.adapt import (
+    NOISY,
+    Blend,
+    adapt_depth_model,
+    adaptation_config,
+    photometric_error,
+)
 from learned.checkpoint import export_weights, file_tag
 from learned.checkpoints import SHIPPED_DEPTH
-from learned.evaluate import evaluate_sequence
+from learned.evaluate import evaluate_sequence, scored_depths
 from learned.frames import FrameSequence, open_sequence
 from learned.model import load_depth_model, to_tensor
 from learned.train import TripletSampler, train_depth
@@ -123,9 +129,10 @@ def test_eval_depth_and_depth_score_and_write_the_adapted_model(start, simulated
         "--out", str(out)])
     assert result.exit_code == 0, result.output
     written = json.loads(out.read_text())
-    adapted = load_depth_model(tmp_path / "runs" / f"{simulated.parent.name}-{simulated.name}"
-                               / "model.safetensors")
     seq = open_sequence(simulated, (TINY.height, TINY.width))
+    adapted = Blend(load_depth_model(tmp_path / "runs" / f"{simulated.parent.name}-"
+                                     f"{simulated.name}" / "model.safetensors"),
+                    load_depth_model(start), seq)
     assert written["adapt_steps"] == 3
     level = photometric_error(load_depth_model(start), seq)
     assert list(written["procedures"].values()) == [
@@ -137,9 +144,37 @@ def test_eval_depth_and_depth_score_and_write_the_adapted_model(start, simulated
                                       "--adapt-noisy"])
     assert result.exit_code == 0, result.output
     with torch.no_grad():  # the same 3 steps, so the same model: its depth is what was written
-        first = adapted.depth(to_tensor(seq.frame(0)[None], "cpu"))[0, 0].numpy()
+        first = adapted.predict_depth(to_tensor(seq.frame(0)[None], "cpu"))[0, 0].numpy()
     np.testing.assert_allclose(np.load(tmp_path / "depth" / "depth" / "000000.npy"), first,
                                rtol=1e-5)
+
+
+def test_the_blend_is_the_geometric_mean_in_the_adapted_unit(start, clip, tmp_path):
+    seq = open_sequence(clip, (TINY.height, TINY.width))
+    own = load_depth_model(start)
+    adapted = adapt_depth_model(start, TINY, seq, tmp_path / "adapted", steps=3,
+                                force=True).model
+    alone = load_depth_model(tmp_path / "adapted" / "model.safetensors")
+    frames = to_tensor(np.stack([seq.frame(t) for t in (0, 7, 29)]), "cpu")
+    with torch.no_grad():
+        a, s, blend = (m.predict_depth(frames).numpy() for m in (alone, own, adapted))
+    unit = np.median(scored_depths(alone, seq)[1][:, seq.region]
+                     / scored_depths(own, seq)[1][:, seq.region])
+    assert abs(np.log(unit)) > 0.01  # the two models' units differ: the factor is needed
+    np.testing.assert_allclose(blend, np.sqrt(a * s * unit), rtol=1e-5)
+    # in the adapted model's unit: over the scored frames, half its depth above the blend's
+    ratio = scored_depths(alone, seq)[1] / scored_depths(adapted, seq)[1]
+    assert abs(np.log(np.median(ratio[:, seq.region]))) < 0.01 * abs(np.log(unit))
+    # motion and K are the adapted model's own
+    with torch.no_grad():
+        motions = [m.pair_motion(frames[:1], frames[1:2]) for m in (adapted, alone, own)]
+    for ours, theirs in zip(*motions[:2], strict=True):
+        torch.testing.assert_close(ours, theirs)
+    assert not torch.allclose(motions[0][1], motions[2][1])  # not the starting model's
+    # a model blended with itself reads as it does
+    same = Blend(own, own, seq)
+    with torch.no_grad():
+        np.testing.assert_allclose(same.predict_depth(frames).numpy(), s, rtol=1e-5)
 
 
 @pytest.mark.parametrize("command", [
