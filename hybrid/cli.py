@@ -542,16 +542,20 @@ def _self_calibration(seq: FrameSequence, contrast: float | None) -> SelfCalibra
     return found
 
 
+def _only_with(given: bool, needed: bool, message: str) -> None:
+    """An option that means something only beside another: `message` where it is given alone."""
+    if given and not needed:
+        raise InputError(message)
+
+
 def _check_noisy(adapt_noisy: bool, adapt_steps: int) -> None:
-    """--adapt-noisy only with --adapt-steps."""
-    if adapt_noisy and not adapt_steps:
-        raise InputError("--adapt-noisy forces an adaptation: give --adapt-steps too")
+    _only_with(adapt_noisy, bool(adapt_steps),
+               "--adapt-noisy forces an adaptation: give --adapt-steps too")
 
 
 def _check_contrast(contrast: float | None, self_calibrate: bool) -> None:
-    if contrast is not None and not self_calibrate:
-        raise InputError("--contrast sets the self-calibration's frames: give --self-calibrate "
-                         "too")
+    _only_with(contrast is not None, self_calibrate,
+               "--contrast sets the self-calibration's frames: give --self-calibrate too")
 
 
 @app.command("eval-depth")
@@ -585,8 +589,8 @@ def eval_depth(
     from learned.model import load_depth_model
     from learned.train import expand_inputs, input_name
 
-    if adapt_dir is not None and not adapt_steps:
-        raise InputError("--adapt-dir keeps adapted models: give --adapt-steps too")
+    _only_with(adapt_dir is not None, bool(adapt_steps),
+               "--adapt-dir keeps adapted models: give --adapt-steps too")
     _check_noisy(adapt_noisy, adapt_steps)
     if out is not None and not out.parent.is_dir():
         raise InputError(f"folder for --out does not exist: {out.parent}")
