@@ -28,6 +28,7 @@ import numpy as np
 
 from fusion.self_calibration import SelfCalibrationConfig, SquarePixels, contrast_enhanced
 from fusion.sfm_baseline import NoModel, run_sfm
+from hybrid import workdir as W
 from hybrid.types import InputError
 from learned.frames import FrameSequence, open_sequence
 
@@ -98,7 +99,7 @@ def map_inputs(inputs: list[Path], out: Path, size: tuple[int, int], length: int
     if clash := sorted({n for n in names if names.count(n) > 1}):
         raise InputError(f"two inputs would share the map {out / clash[0]} (maps are named "
                          f"<folder>-<name>); map them into separate folders")
-    out.mkdir(parents=True, exist_ok=True)
+    W.make_folder(out)
     done = [p for p in inputs if map_path(out, p).exists()]
     for path in done:
         yield f"{path}: already mapped in {map_path(out, path)}"

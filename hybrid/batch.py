@@ -1,11 +1,12 @@
 """Batch runs: every video in a folder, each in its own work directory, failures isolated.
 
 Writes out/<video name>/ per video (see hybrid.pipeline), out/<video name>/error.txt when a
-video fails, and out/summary.csv (one row per video, rewritten atomically after each video;
-a rerun starts from the rows an earlier one left, so videos it has not reached yet keep theirs).
-A video whose report exists is skipped; an interrupted one resumes at its first missing stage.
-With several workers each video runs in a process of its own, so that one that dies fails
-only its own video.
+video fails (never into a folder that holds another video's run), and out/summary.csv (one row
+per video by its full path, rewritten atomically after each video; a batch keeps the rows
+earlier ones left, so that videos it has not reached yet, and those of other folders batched
+into the same out, keep theirs). A video whose report exists is skipped; an interrupted one
+resumes at its first missing stage. With several workers each video runs in a process of its
+own, so that one that dies fails only its own video.
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ import traceback
 from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor, as_completed
 from concurrent.futures.process import BrokenProcessPool
+from dataclasses import dataclass
 from multiprocessing import get_context
 from pathlib import Path
 
@@ -38,31 +40,45 @@ FIELDS = ("video", "status", "frames", "seconds_of_video", "segments", "mean_lea
           "error")
 
 
+@dataclass(frozen=True)
+class BatchResult:
+    summary: Path
+    """summary.csv: this batch's videos and those earlier batches into the same out left."""
+    rows: list[dict]
+    """This batch's videos' rows, in the order of list_videos."""
+
+
 def list_videos(folder: Path) -> list[Path]:
+    """The video files of a folder (not its subfolders, nor folders or hidden files with a
+    video's suffix, such as the ._ files macOS leaves), as absolute paths."""
     folder = Path(folder)
     if not folder.is_dir():
         raise InputError(f"video folder not found: {folder}")
-    videos = sorted(p for p in folder.iterdir() if p.suffix.lower() in VIDEO_SUFFIXES)
+    videos = sorted(p.absolute() for p in folder.iterdir() if p.suffix.lower() in VIDEO_SUFFIXES
+                    and not p.name.startswith(".") and not p.is_dir())
     if not videos:
         raise InputError(f"no videos ({', '.join(sorted(VIDEO_SUFFIXES))}) in {folder}")
     return videos
 
 
 def run_batch(folder: Path, out: Path, config: RunConfig | None = None, workers: int = 1,
-              progress: bool = True, device: torch.device | str = "cpu") -> Path:
-    """Run every video, the networks on `device`; returns the summary CSV's path."""
+              progress: bool = True, device: torch.device | str = "cpu") -> BatchResult:
+    """Run every video, the networks on `device`."""
     config = config or RunConfig()
     videos = list_videos(folder)
+    out = Path(out)
+    if out.resolve() == Path(folder).resolve():
+        raise InputError(f"--out {out} is the video folder itself: each video's work folder "
+                         f"takes the video's name; choose another --out")
     # Loaded before any video starts, so that networks this configuration cannot run are
     # refused up front.
     models = Models.load(config, device if workers == 1 else "cpu")
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    rows = _earlier_rows(out, videos)
+    W.make_folder(out)
+    rows = _earlier_rows(out)
     bar = tqdm(total=len(videos), desc="videos", unit="video", disable=not progress)
     if workers == 1:
         for video in videos:
-            rows[video.name] = _run_one(video, out / video.name, config, models)
+            rows[str(video)] = _run_one(video, out / video.name, config, models)
             _write_summary(out, videos, rows)
             bar.update(1)
     else:
@@ -73,7 +89,7 @@ def run_batch(folder: Path, out: Path, config: RunConfig | None = None, workers:
                        for v in videos}
             try:
                 for future in as_completed(futures):
-                    rows[futures[future].name] = future.result()
+                    rows[str(futures[future])] = future.result()
                     _write_summary(out, videos, rows)
                     bar.update(1)
             except BaseException:  # e.g. Ctrl-C: start no more videos (those running end
@@ -81,7 +97,7 @@ def run_batch(folder: Path, out: Path, config: RunConfig | None = None, workers:
                 pool.shutdown(wait=False, cancel_futures=True)
                 raise
     bar.close()
-    return out / SUMMARY
+    return BatchResult(out / SUMMARY, [rows[str(video)] for video in videos])
 
 
 def _run_in_process(video: Path, work: Path, config: RunConfig, device: torch.device | str,
@@ -91,12 +107,11 @@ def _run_in_process(video: Path, work: Path, config: RunConfig, device: torch.de
     try:
         return in_own_process(_run_one, video, work, config, None, device, threads=threads)
     except Exception as err:  # the process died, or could not start
-        work.mkdir(parents=True, exist_ok=True)
         message = (f"the process running this video died ({err}); it may have run out of "
                    f"memory: run it alone, or with fewer --workers"
                    if isinstance(err, BrokenProcessPool) else
                    f"no process could run this video ({type(err).__name__}: {err})")
-        W.write_text(work / W.ERROR, message + "\n")
+        _record_failure(video, work, message)
         return {"video": str(video), "status": "failed", "error": message}
 
 
@@ -119,24 +134,37 @@ def _run_one(video: Path, work: Path, config: RunConfig, models: Models | None,
              device: torch.device | str = "cpu") -> dict:
     """One video (its own Models loaded on `device` if none are given); any failure becomes
     a row with its error (and work/error.txt)."""
-    error_file = work / W.ERROR
     try:
         done_before = (work / W.REPORT).is_file()
         models = models or Models.load(config, device)
         result = run_video(video, work, config, models, progress=False)
-        if error_file.is_file():
-            error_file.unlink()
+        (work / W.ERROR).unlink(missing_ok=True)
         row = _summarise(work)
         row.update(status="done before" if done_before else "done",
                    warnings="; ".join(result["warnings"]))
     except Exception as err:  # isolate every failure, expected or not, to its video
-        work.mkdir(parents=True, exist_ok=True)
-        message = str(err) if isinstance(err, InputError) else traceback.format_exc()
-        W.write_text(error_file, message + "\n")
+        _record_failure(video, work, str(err) if isinstance(err, InputError) else
+                        traceback.format_exc())
         row = {"status": "failed", "error": str(err).splitlines()[0] if str(err) else
                type(err).__name__}
     row["video"] = str(video)
     return row
+
+
+def _record_failure(video: Path, work: Path, message: str) -> None:
+    """work/error.txt, unless work is a file or holds another input's run (the row says why
+    the video failed either way)."""
+    if work.exists() and not work.is_dir():
+        return
+    config = work / W.CONFIG
+    if config.is_file() and (json.loads(config.read_text())["source"]["path"]
+                             != str(video.resolve())):
+        return
+    try:
+        W.make_folder(work)
+        W.write_text(work / W.ERROR, message + "\n")
+    except (InputError, OSError) as err:  # e.g. the disk is full: the row still says it
+        logging.getLogger(__name__).warning("%s: %s not written: %s", work, W.ERROR, err)
 
 
 def _summarise(work: Path) -> dict:
@@ -157,27 +185,27 @@ def _summarise(work: Path) -> dict:
             "not_assessable": sum(not s["assessable"] for s in segments)}
 
 
-def _earlier_rows(out: Path, videos: list[Path]) -> dict[str, dict]:
-    """The rows an earlier batch into `out` left for these videos, so that a rerun stopped
-    before it reaches them does not list them as pending."""
+def _earlier_rows(out: Path) -> dict[str, dict]:
+    """The rows earlier batches into `out` left, by video, so that a rerun stopped before it
+    reaches a video does not list it as pending, and another folder's videos keep theirs."""
     path = out / SUMMARY
     if not path.is_file():
         return {}
-    names = {str(video): video.name for video in videos}
     with path.open(newline="") as f:
         reader = csv.DictReader(f)
         if not {"video", "status"} <= set(reader.fieldnames or ()):
             raise InputError(f"{path} is not a summary written by c2d2 batch (no video and "
                              f"status columns); choose another --out")
-        return {names[row["video"]]: row for row in reader
-                if row["video"] in names and row["status"] != "pending"}
+        rows = [row | {"video": str(Path(row["video"]).absolute())} for row in reader]
+    return {row["video"]: row for row in rows}  # earlier batches wrote paths as given
 
 
 def _write_summary(out: Path, videos: list[Path], rows: dict[str, dict]) -> None:
+    """This batch's videos (pending where not yet run) and the other rows, by video."""
+    rows = {str(v): {"video": str(v), "status": "pending"} for v in videos} | rows
     text = io.StringIO()
     writer = csv.DictWriter(text, fieldnames=FIELDS)
     writer.writeheader()
-    for video in videos:
-        row = rows.get(video.name, {"video": str(video), "status": "pending"})
-        writer.writerow({k: row.get(k, "") for k in FIELDS})
+    for video in sorted(rows):
+        writer.writerow({k: rows[video].get(k, "") for k in FIELDS})
     W.write_text(out / SUMMARY, text.getvalue())

@@ -244,8 +244,9 @@ def run(
                                           "procedure).")],
     out: Annotated[Path, typer.Option(help="Work folder: every stage's output and "
                                       "report.html; rerun to resume.")],
-    fps: Annotated[float | None, typer.Option(help="Frame rate, if the file's is wrong or "
-                                              "missing.")] = None,
+    fps: Annotated[float | None, typer.Option(help="Frame rate, if the video's is wrong or "
+                                              "missing (an image folder is read at 30 unless "
+                                              "given).")] = None,
     mask: Annotated[Path | None, typer.Option(help="Image-region mask (white = image) in the "
                                               "video's size; detected if omitted.")] = None,
     depth_checkpoint: PipelineDepth = None,
@@ -294,9 +295,9 @@ def batch(
     self_calibrate: ViewSelfCalibrate = False,
     device: Device = "auto",
 ):
-    """Every video in a folder; failures are recorded per video while the rest go on."""
-    import csv
-
+    """Every video file in a folder (not its subfolders); failures are recorded per video
+    while the rest go on. Exit status 1 if a video failed, else 3 if a video's results are
+    incomplete (its warnings, as `c2d2 run` gives them)."""
     from hybrid.batch import run_batch
     from hybrid.pipeline import RunConfig
     from learned.device import pick_device
@@ -305,14 +306,18 @@ def batch(
                                   coverage_checkpoint=_opt(coverage_checkpoint),
                                   fisheye_fov_deg=fisheye_fov, find_lens=find_lens,
                                   self_calibrate=self_calibrate), insertion)
-    summary = run_batch(folder, out, config, workers=workers, device=pick_device(device))
-    rows = list(csv.DictReader(summary.open()))
-    failed = [r for r in rows if r["status"] == "failed"]
+    result = run_batch(folder, out, config, workers=workers, device=pick_device(device))
+    failed = [r for r in result.rows if r["status"] == "failed"]
     for r in failed:
         typer.echo(f"failed: {r['video']}: {r['error']}", err=True)
-    typer.echo(f"{len(rows) - len(failed)} of {len(rows)} videos done; summary: {summary}")
-    if failed:
-        raise typer.Exit(1)
+    incomplete = [r for r in result.rows if r.get("warnings")]
+    for r in incomplete:
+        typer.echo(f"warning: {r['video']}: {r['warnings']}", err=True)
+    typer.echo(f"{len(result.rows) - len(failed)} of {len(result.rows)} videos done"
+               f"{f', {len(incomplete)} with incomplete results' if incomplete else ''}; "
+               f"summary: {result.summary}")
+    if failed or incomplete:
+        raise typer.Exit(1 if failed else 3)
 
 
 @app.command("eval")
@@ -518,6 +523,7 @@ def depth(
     checkpoint, device = checkpoint or _shipped_checkpoint(), pick_device(device)
     model = load_depth_model(checkpoint, device=device)
     seq = open_sequence(input, (model.config.height, model.config.width), _read_mask(mask), fps)
+    W.make_folder(out)
     calibration = _self_calibration(seq, contrast) if self_calibrate else None
     if adapt_steps:
         model = adapt_depth_model(checkpoint, model.config, seq, out / "adapted", adapt_steps,
@@ -722,7 +728,7 @@ def eval_coverage(
         samples = [replace(s, view=hidden_view(len(s.view))) for s in samples]
     predictions = evaluate(net, samples)
     metrics = coverage_metrics(predictions)
-    out.mkdir(parents=True, exist_ok=True)
+    W.make_folder(out)
     W.write_json(out / "metrics.json", {
         "model": str(model_path), "data": [str(p) for p in data], "view_hidden": view_hidden,
         **metrics, "segment_mae_interval": segment_mae_interval(predictions),

@@ -87,7 +87,8 @@ class Procedure:
     def open(cls, path: Path) -> Procedure:
         path = Path(path)
         if not path.is_dir():
-            raise InputError(f"procedure folder not found: {path}")
+            raise InputError(f"{path} is a file, not a simulated procedure's folder" if
+                             path.exists() else f"procedure folder not found: {path}")
         missing = [f for f in REQUIRED_FILES if not (path / f).is_file()]
         if missing:
             raise InputError(f"procedure folder {path} lacks {', '.join(missing)}; "

@@ -41,6 +41,7 @@ from hybrid.npyio import NpyWriter
 from hybrid.types import InputError
 from hybrid.workdir import write_json
 from learned.frames import (
+    IMAGE_FOLDER_FPS,
     VIDEO_SUFFIXES,
     Crop,
     FrameSequence,
@@ -232,7 +233,8 @@ def _open(path: Path, fps: float | None, region: np.ndarray | None) -> _Source:
                        proc.num_frames, proc.region)
     if path.is_dir():
         files = image_files(path)
-        return _Source(str(path), fps or 30.0, lambda: map(read_image, files), len(files))
+        return _Source(str(path), fps or IMAGE_FOLDER_FPS, lambda: map(read_image, files),
+                       len(files))
     if path.suffix.lower() not in VIDEO_SUFFIXES:
         raise InputError(f"{path}: not a video ({', '.join(sorted(VIDEO_SUFFIXES))}), a folder "
                          f"of images or a simulated procedure")
@@ -243,7 +245,8 @@ def _open(path: Path, fps: float | None, region: np.ndarray | None) -> _Source:
     count = int(capture.get(cv2.CAP_PROP_FRAME_COUNT) or 0)
     capture.release()
     if not rate or not np.isfinite(rate) or rate <= 0:
-        raise InputError(f"{path}: the video declares no frame rate; give one with --fps")
+        raise InputError(f"{path}: the video declares no frame rate; give one with `c2d2 run "
+                         f"--fps`")
     return _Source(str(path), float(rate), lambda: _decode(path), max(count, 0))
 
 

@@ -279,11 +279,20 @@ class _Run:
         record.save(self.path(W.INGEST))  # last: its presence marks the stage complete
 
     def check_length(self) -> None:
-        record = self.ingested
+        """At least one segment, each longer than the frames the coverage model's travel input
+        spans (else every frame's travel would be read mostly outside its segment)."""
+        record, seconds = self.ingested, self.config.segment_seconds
         if record.frames < self.segment_frames:
             raise InputError(f"{self.source}: {record.frames} frames at {record.fps:g} fps "
                              f"({record.frames / record.fps:.1f} s) is shorter than one "
-                             f"{self.config.segment_seconds:g}-s segment")
+                             f"{seconds:g}-s segment")
+        hops = max(1, self.models.coverage.config.travel_hops)
+        if self.segment_frames <= self.travel_gap * hops:
+            raise InputError(f"{self.source}: a {seconds:g}-s segment holds {self.segment_frames} "
+                             f"frames at {record.fps:g} fps, no more than the coverage model's "
+                             f"travel input spans ({hops} hops of {self.travel_gap} frames); "
+                             f"check the frame rate (`c2d2 run --fps`) or give longer segments "
+                             f"(--segment-seconds)")
 
     def depth_stage(self) -> None:
         seq = self.sequence()
@@ -542,8 +551,9 @@ def run_video(source: Path, out: Path, config: RunConfig = RunConfig(),
     Raises InputError for bad input; a geometric-branch failure is recorded, not raised.
     Warnings (results written but incomplete): frames that did not decode, a geometric branch
     that could not run, frame pairs the RGB-D odometry could not align, a pose graph stopped at
-    its iteration cap. Notes: trailing frames that do not fill a segment get no verdict; for
-    networks that read a self-calibrated field of view, whether they had one.
+    its iteration cap. Notes: the frame rate an image folder is read at unless given; trailing
+    frames that do not fill a segment get no verdict; for networks that read a self-calibrated
+    field of view, whether they had one.
     """
     source, out = Path(source), Path(out)
     models = models or Models.load(config)
@@ -609,11 +619,22 @@ def run_video(source: Path, out: Path, config: RunConfig = RunConfig(),
                             f"allows (to raise the cap: PoseGraphConfig.max_iterations, in "
                             f"RunConfig.posegraph through the Python API, into a new work "
                             f"folder)")
+    if note := frame_rate_note(source, config, run.ingested.fps):
+        echo(note)
     dropped = run.ingested.frames % run.segment_frames
     if dropped:
         echo(f"note: the last {dropped} frames ({dropped / run.ingested.fps:.1f} s) do not fill "
              f"a {config.segment_seconds:g}-s segment and have no verdict")
     return {"timing": timing, "warnings": warnings}
+
+
+def frame_rate_note(source: Path, config: RunConfig, fps: float) -> str | None:
+    """A note for an image folder read at a rate it was not given (it carries none)."""
+    if not source.is_dir() or config.fps is not None or is_procedure(source):
+        return None
+    return (f"note: {source} is a folder of images, which carries no frame rate: read at "
+            f"{fps:g} frames/s, so its times and segments are right only at that rate (give "
+            f"the true one with --fps)")
 
 
 def _source_identity(source: Path) -> dict:
@@ -687,6 +708,9 @@ def _prepare(out: Path, config: RunConfig, source: Path, models: Models,
              region: np.ndarray | None) -> None:
     """Create the work directory; refuse one that holds a run of another video, image region
     (--mask), config or model files, and a simulated procedure with a frame rate or mask."""
+    if source.is_dir() and out.resolve() == source.resolve():
+        raise InputError(f"--out {out} is the input folder itself: the run's files would join "
+                         f"its images; choose another --out")
     if not (out / W.CONFIG).is_file():  # a new run: refused before anything is written (a
         # folder holding a run says first how the options differ from its own)
         is_procedure(source, config.fps, region)

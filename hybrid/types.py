@@ -170,6 +170,9 @@ def read_mask(path: Path, what: str = "mask") -> np.ndarray:
     image = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
     if image is None:
         raise InputError(f"cannot read {what} image {path}")
+    if not (image > 127).any():
+        raise InputError(f"{what} image {path} is all black: it marks no pixel as image (white "
+                         f"= image)")
     return image > 127
 
 

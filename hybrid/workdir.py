@@ -10,6 +10,8 @@ import json
 import os
 from pathlib import Path
 
+from hybrid.types import InputError
+
 LENS = "lens.json"
 """Structure from motion with a fisheye camera on stretches of the video as recorded
 (fusion.self_calibration's record), when the run tells the lens from the video."""
@@ -65,6 +67,18 @@ CONFIG = "config.json"
 """The resolved run configuration and the package version."""
 TIMING = "timing.json"
 """Seconds per stage."""
+
+
+def make_folder(path: Path, option: str = "--out") -> Path:
+    """Create an output folder given as `option` (and its parents), or say why it cannot be
+    one (a file in the way, no permission) and to choose another."""
+    path = Path(path)
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise InputError(f"cannot make the output folder {path}: {err.strerror or err}; "
+                         f"choose another {option}") from err
+    return path
 
 
 def write_text(path: Path, text: str) -> Path:

@@ -342,8 +342,7 @@ def train_coverage(data: list[Path], out: Path, config: CoverageConfig,
     """Cross-validate, then train on everything, on `device`; returns the final model's
     path. The procedures under frame_data train the per-frame network of every model and are
     never held out."""
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
+    out = W.make_folder(out)
     record_path = out / "record.json"
     previous = json.loads(record_path.read_text()) if record_path.is_file() else {}
     if previous and recorded_config(previous) != config:

@@ -32,6 +32,8 @@ log = logging.getLogger(__name__)
 
 VIDEO_SUFFIXES = {".mp4", ".avi", ".mov", ".mkv", ".mpg", ".mpeg", ".webm", ".m4v", ".wmv"}
 IMAGE_SUFFIXES = {".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff"}
+IMAGE_FOLDER_FPS = 30.0
+"""The frame rate a folder of images is read at unless one is given (it carries none)."""
 _DARK = 20
 """Grey level (0-255) below which a pixel that is never brighter belongs to the border."""
 
@@ -51,9 +53,12 @@ class Crop:
     def of(cls, region: np.ndarray, shape: tuple[int, ...], name: str) -> Crop:
         """The bounding box of an input's image region, a non-empty bool mask of the frame
         size `shape` (H, W[, 3]), or an InputError naming `name`."""
-        if region.shape != tuple(shape[:2]) or not region.any():
-            raise InputError(f"{name}: the image region must be a non-empty mask of the frame "
-                             f"size {tuple(shape[:2])}, got {region.shape}")
+        if region.shape != tuple(shape[:2]):
+            raise InputError(f"{name}: the image region must be a mask of the frame size "
+                             f"{tuple(shape[:2])}, got {region.shape}")
+        if not region.any():
+            raise InputError(f"{name}: the image region is empty: it shows no pixel of the "
+                             f"frame")
         ys, xs = np.nonzero(region)
         return cls(int(xs.min()), int(ys.min()), int(xs.max() - xs.min() + 1),
                    int(ys.max() - ys.min() + 1), region.shape[1], region.shape[0])
@@ -215,7 +220,8 @@ def open_sequence(path: Path, size: tuple[int, int], region: np.ndarray | None =
     """A simulated procedure folder, a folder of images, or a video file.
 
     region: the image region in input pixels (bool); detected from the frames if None.
-    fps: the frame rate of a video or image folder (None: the video's own; 30 for images).
+    fps: the frame rate of a video or image folder (None: the video's own; IMAGE_FOLDER_FPS
+    for images).
     """
     path = Path(path)
     check_fps(fps)
@@ -224,7 +230,7 @@ def open_sequence(path: Path, size: tuple[int, int], region: np.ndarray | None =
     if is_procedure(path, fps, region):
         return _simulated(path, size)
     if path.is_dir():
-        return _image_folder(path, size, region, fps or 30.0)
+        return _image_folder(path, size, region, fps or IMAGE_FOLDER_FPS)
     if path.suffix.lower() in VIDEO_SUFFIXES:
         return _video(path, size, region, fps)
     raise InputError(f"{path}: not a video ({', '.join(sorted(VIDEO_SUFFIXES))}), a folder of "

@@ -187,7 +187,7 @@ def train_depth(data: list[Path | FrameSequence], out: Path, config: DepthConfig
     path = out / CHECKPOINT
     if not path.is_file() and config.init and not Path(config.init).is_file():
         raise InputError(f"--init: no depth model at {config.init}")
-    out.mkdir(parents=True, exist_ok=True)
+    W.make_folder(out)
     step, tensors, meta, elapsed = 0, None, None, 0.0
     if path.is_file():  # resume with the run's own config, see _resumed_config
         tensors, meta = read_checkpoint(path)

@@ -35,6 +35,7 @@ from hybrid.pipeline import (
     RunConfig,
     _differing,
     _Run,
+    frame_rate_note,
     made_with,
     recorded_config,
     run_video,
@@ -1170,6 +1171,120 @@ def test_batch_resumes_after_a_kill_and_isolates_a_bad_file(frames, tmp_path, mo
     assert third["b_second.avi"] == again["b_second.avi"]
 
 
+def damaged_video(path: Path, frames: list[np.ndarray]) -> Path:
+    """110 frames with about three undecodable ones in the middle (still one 10-s segment)."""
+    video = write_video(path, frames[:110], FPS)
+    data = bytearray(video.read_bytes())
+    middle = len(data) // 2
+    data[middle:middle + 8192] = bytes(8192)  # about three MJPG frames of 160x128
+    video.write_bytes(bytes(data))
+    return video
+
+
+def test_a_batch_from_another_folder_into_the_same_out_keeps_the_first_ones_runs(frames,
+                                                                                 tmp_path):
+    """Another folder's video of the same name is refused its work folder, which keeps the
+    first video's run whole (no error.txt written into it); the summary keeps the first
+    batch's row beside the refused one. A video whose results are incomplete (frames that did
+    not decode) makes batch exit with status 3 and a warning naming it, as run does."""
+    first, second = tmp_path / "first", tmp_path / "second"
+    first.mkdir()
+    second.mkdir()
+    damaged_video(first / "a.avi", frames)
+    write_video(second / "a.avi", frames[90:200], FPS)
+    out = tmp_path / "out"
+
+    done = runner.invoke(app, ["batch", str(first), "--out", str(out)])
+    assert done.exit_code == 3, done.output
+    assert "1 of 1 videos done, 1 with incomplete results" in done.stdout
+    assert re.search(r"warning: .*first/a\.avi: .*could not be decoded", done.stderr)
+    finished = snapshot(out / "a.avi")
+    refused = runner.invoke(app, ["batch", str(second), "--out", str(out)])
+    assert refused.exit_code == 1, refused.output
+    assert f"holds a run of {(first / 'a.avi').resolve()}" in refused.stderr
+    assert snapshot(out / "a.avi") == finished and not (out / "a.avi" / W.ERROR).exists()
+    with (out / "summary.csv").open() as f:
+        rows = {row["video"]: row for row in csv.DictReader(f)}
+    assert sorted(rows) == [str((first / "a.avi").absolute()), str((second / "a.avi").absolute())]
+    assert rows[str((first / "a.avi").absolute())]["status"] == "done"
+    assert "could not be decoded" in rows[str((first / "a.avi").absolute())]["warnings"]
+    assert rows[str((second / "a.avi").absolute())]["status"] == "failed"
+
+
+def test_batch_lists_the_video_files_of_the_folder_only(tmp_path):
+    """Not hidden files (macOS's ._ files), folders named like videos, or subfolders."""
+    from hybrid.batch import list_videos
+
+    for name in ("a.avi", "._a.avi", ".hidden.mp4", "notes.txt", "sub/b.avi"):
+        (tmp_path / name).parent.mkdir(exist_ok=True)
+        (tmp_path / name).write_bytes(b"")
+    (tmp_path / "folder.mp4").mkdir()
+    assert list_videos(tmp_path) == [(tmp_path / "a.avi").absolute()]
+
+
+@pytest.mark.parametrize("command", [["batch", "VIDEOS", "--out", "VIDEOS"],
+                                     ["batch", "VIDEOS", "--out", "FILE"],
+                                     ["depth", "IMAGES", "--out", "FILE"],
+                                     ["simulate", "--out", "FILE", "--max-frames", "2"]])
+def test_an_out_folder_that_is_the_input_or_a_file_is_refused(command, frames, tmp_path):
+    videos, images, file = tmp_path / "videos", tmp_path / "images", tmp_path / "notes.txt"
+    videos.mkdir()
+    (videos / "a.avi").write_bytes(b"not looked at")
+    images.mkdir()
+    for k in range(3):
+        cv2.imwrite(str(images / f"{k}.png"), frames[k][..., ::-1])
+    file.write_text("kept")
+    given = {"VIDEOS": str(videos), "IMAGES": str(images), "FILE": str(file)}
+    before = snapshot(tmp_path)
+    message = assert_input_error(runner.invoke(app, [given.get(a, a) for a in command]),
+                                 given[command[command.index("--out") + 1]])
+    assert "choose another --out" in message
+    assert snapshot(tmp_path) == before
+
+
+def test_run_refuses_the_image_folder_it_reads_as_its_out_folder(frames, tmp_path):
+    """Its files would join the images (and change the folder it was asked to read)."""
+    folder = tmp_path / "images"
+    folder.mkdir()
+    for k in range(6):
+        cv2.imwrite(str(folder / f"{k}.png"), frames[k][..., ::-1])
+    before = snapshot(folder)
+    message = assert_input_error(runner.invoke(app, ["run", str(folder), "--out", str(folder)]),
+                                 str(folder))
+    assert "the input folder itself" in message
+    assert snapshot(folder) == before
+
+
+def test_an_image_folder_read_at_a_rate_it_was_not_given_is_noted(tmp_path):
+    note = frame_rate_note(tmp_path, RunConfig(), 30.0)
+    assert note is not None and "read at 30 frames/s" in note and "--fps" in note
+    assert frame_rate_note(tmp_path, RunConfig(fps=12.0), 12.0) is None
+    assert frame_rate_note(tmp_path / "video.avi", RunConfig(), 25.0) is None
+
+
+def test_segments_no_longer_than_the_travel_input_are_refused(frames, tmp_path):
+    """2-s segments of a 10-fps video hold 20 frames; the shipped coverage model's travel
+    (8 hops of 8 frames at 30 fps, so of 3 at 10) spans 24: every frame's travel would be read
+    mostly outside its segment (a frame rate read wrong gives the same, e.g. 0.001 fps)."""
+    video = write_video(tmp_path / "video.avi", frames[:110], FPS)
+    out = tmp_path / "out"
+    message = assert_input_error(runner.invoke(app, ["run", str(video), "--out", str(out),
+                                                     "--segment-seconds", "2"]), str(video))
+    assert "holds 20 frames" in message and "(8 hops of 3 frames)" in message
+    assert not (out / W.DEPTH).exists()
+
+
+def test_an_all_black_mask_and_a_file_given_as_a_procedure_are_named(tmp_path):
+    from hybrid.types import read_mask
+
+    mask = tmp_path / "mask.png"
+    cv2.imwrite(str(mask), np.zeros((8, 8), np.uint8))
+    with pytest.raises(InputError, match=f"mask image {re.escape(str(mask))} is all black"):
+        read_mask(mask)
+    with pytest.raises(InputError, match="is a file, not a simulated procedure's folder"):
+        Procedure.open(mask)
+
+
 # --- bad input to `c2d2 run` -----------------------------------------------------------------
 
 
@@ -1223,11 +1338,7 @@ def test_run_on_a_video_with_corrupt_frames_in_the_middle(frames, tmp_path):
     """FFmpeg (OpenCV 5) skips the undecodable frames and decodes on to the end: the run writes
     its results from the frames that decode and exits with status 3 and a warning that says
     how many of the declared frames are lost."""
-    video = write_video(tmp_path / "damaged.avi", frames[:110], FPS)
-    data = bytearray(video.read_bytes())
-    middle = len(data) // 2
-    data[middle:middle + 8192] = bytes(8192)  # about three MJPG frames of 160x128
-    video.write_bytes(bytes(data))
+    video = damaged_video(tmp_path / "damaged.avi", frames)
     decoded = decodable_frames(video)
     assert 100 <= decoded < 110  # still one 10-s segment
     out = tmp_path / "out"

@@ -21,6 +21,7 @@ import trimesh
 from tqdm import tqdm
 
 from hybrid import __version__
+from hybrid import workdir as W
 from hybrid.coverage import Lumen, SurfaceMesh, compute_coverage
 from hybrid.dataset import (
     REGION_FILE,
@@ -273,8 +274,7 @@ def simulate_dataset(out_dir: Path, procedures: int, seed: int, config: SimConfi
     """Simulate procedures first_index .. first_index + procedures - 1 (resumable); with
     window_stride, label overlapping windows too (simulate_procedure)."""
     _window_check(config, window_stride)
-    out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
+    out_dir = W.make_folder(out_dir)
     jobs = [(out_dir, seed, first_index + k, config) for k in range(procedures)]
     for job in jobs:  # refuse a folder of other settings before rendering anything
         _complete(out_dir / procedure_name(job[2]), seed, job[2], config)
