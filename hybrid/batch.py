@@ -2,7 +2,7 @@
 
 Writes out/<video name>/ per video (see hybrid.pipeline), out/<video name>/error.txt when a
 video fails (never into a folder that holds another video's run), and out/summary.csv (one row
-per video by its full path, rewritten atomically after each video; a batch keeps the rows
+per video by its resolved path, rewritten atomically after each video; a batch keeps the rows
 earlier ones left, so that videos it has not reached yet, and those of other folders batched
 into the same out, keep theirs). A video whose report exists is skipped; an interrupted one
 resumes at its first missing stage. With several workers each video runs in a process of its
@@ -66,19 +66,16 @@ def run_batch(folder: Path, out: Path, config: RunConfig | None = None, workers:
     """Run every video, the networks on `device`."""
     config = config or RunConfig()
     videos = list_videos(folder)
-    out = Path(out)
-    if out.resolve() == Path(folder).resolve():
-        raise InputError(f"--out {out} is the video folder itself: each video's work folder "
-                         f"takes the video's name; choose another --out")
+    W.check_not_input(out, folder)
+    out = W.make_folder(out)
+    rows = _earlier_rows(out)
     # Loaded before any video starts, so that networks this configuration cannot run are
     # refused up front.
     models = Models.load(config, device if workers == 1 else "cpu")
-    W.make_folder(out)
-    rows = _earlier_rows(out)
     bar = tqdm(total=len(videos), desc="videos", unit="video", disable=not progress)
     if workers == 1:
         for video in videos:
-            rows[str(video)] = _run_one(video, out / video.name, config, models)
+            rows[_key(video)] = _run_one(video, out / video.name, config, models)
             _write_summary(out, videos, rows)
             bar.update(1)
     else:
@@ -89,7 +86,7 @@ def run_batch(folder: Path, out: Path, config: RunConfig | None = None, workers:
                        for v in videos}
             try:
                 for future in as_completed(futures):
-                    rows[str(futures[future])] = future.result()
+                    rows[_key(futures[future])] = future.result()
                     _write_summary(out, videos, rows)
                     bar.update(1)
             except BaseException:  # e.g. Ctrl-C: start no more videos (those running end
@@ -97,7 +94,7 @@ def run_batch(folder: Path, out: Path, config: RunConfig | None = None, workers:
                 pool.shutdown(wait=False, cancel_futures=True)
                 raise
     bar.close()
-    return BatchResult(out / SUMMARY, [rows[str(video)] for video in videos])
+    return BatchResult(out / SUMMARY, [rows[_key(video)] for video in videos])
 
 
 def _run_in_process(video: Path, work: Path, config: RunConfig, device: torch.device | str,
@@ -112,7 +109,7 @@ def _run_in_process(video: Path, work: Path, config: RunConfig, device: torch.de
                    if isinstance(err, BrokenProcessPool) else
                    f"no process could run this video ({type(err).__name__}: {err})")
         _record_failure(video, work, message)
-        return {"video": str(video), "status": "failed", "error": message}
+        return {"video": _key(video), "status": "failed", "error": message}
 
 
 def in_own_process(function: Callable, *args, threads: int = 1):
@@ -147,7 +144,7 @@ def _run_one(video: Path, work: Path, config: RunConfig, models: Models | None,
                         traceback.format_exc())
         row = {"status": "failed", "error": str(err).splitlines()[0] if str(err) else
                type(err).__name__}
-    row["video"] = str(video)
+    row["video"] = _key(video)
     return row
 
 
@@ -157,9 +154,13 @@ def _record_failure(video: Path, work: Path, message: str) -> None:
     if work.exists() and not work.is_dir():
         return
     config = work / W.CONFIG
-    if config.is_file() and (json.loads(config.read_text())["source"]["path"]
-                             != str(video.resolve())):
-        return
+    if config.is_file():
+        try:
+            source = json.loads(config.read_text())["source"]["path"]
+        except (OSError, ValueError, KeyError, TypeError):  # not a run this c2d2 wrote
+            return
+        if source != _key(video):
+            return
     try:
         W.make_folder(work)
         W.write_text(work / W.ERROR, message + "\n")
@@ -196,13 +197,20 @@ def _earlier_rows(out: Path) -> dict[str, dict]:
         if not {"video", "status"} <= set(reader.fieldnames or ()):
             raise InputError(f"{path} is not a summary written by c2d2 batch (no video and "
                              f"status columns); choose another --out")
-        rows = [row | {"video": str(Path(row["video"]).absolute())} for row in reader]
-    return {row["video"]: row for row in rows}  # earlier batches wrote paths as given
+        rows = [row | {"video": _key(Path(row["video"]))} for row in reader
+                if row["status"] != "pending"]
+    return {row["video"]: row for row in rows}
+
+
+def _key(video: Path) -> str:
+    """A video's row: its path resolved (as its run's config.json records it; earlier batches
+    wrote paths as given, read here from the working directory)."""
+    return str(video.resolve())
 
 
 def _write_summary(out: Path, videos: list[Path], rows: dict[str, dict]) -> None:
     """This batch's videos (pending where not yet run) and the other rows, by video."""
-    rows = {str(v): {"video": str(v), "status": "pending"} for v in videos} | rows
+    rows = {_key(v): {"video": _key(v), "status": "pending"} for v in videos} | rows
     text = io.StringIO()
     writer = csv.DictWriter(text, fieldnames=FIELDS)
     writer.writeheader()

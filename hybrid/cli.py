@@ -222,6 +222,7 @@ def demo(
         config = with_overrides(SimConfig(), length_cm=length_cm, max_frames=max_frames)
     except ValueError as err:
         raise InputError(str(err)) from err
+    W.make_folder(out)
     models = Models.load(RunConfig(), pick_device(device))
     procedure = Procedure.open(simulate_procedure(out, seed, 0, config, progress=True))
     result = run_video(procedure.path, out / "run", models=models, echo=typer.echo)
@@ -523,6 +524,7 @@ def depth(
     checkpoint, device = checkpoint or _shipped_checkpoint(), pick_device(device)
     model = load_depth_model(checkpoint, device=device)
     seq = open_sequence(input, (model.config.height, model.config.width), _read_mask(mask), fps)
+    W.check_not_input(out, input)
     W.make_folder(out)
     calibration = _self_calibration(seq, contrast) if self_calibrate else None
     if adapt_steps:

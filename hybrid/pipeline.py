@@ -279,20 +279,23 @@ class _Run:
         record.save(self.path(W.INGEST))  # last: its presence marks the stage complete
 
     def check_length(self) -> None:
-        """At least one segment, each longer than the frames the coverage model's travel input
-        spans (else every frame's travel would be read mostly outside its segment)."""
-        record, seconds = self.ingested, self.config.segment_seconds
+        record = self.ingested
         if record.frames < self.segment_frames:
             raise InputError(f"{self.source}: {record.frames} frames at {record.fps:g} fps "
                              f"({record.frames / record.fps:.1f} s) is shorter than one "
-                             f"{seconds:g}-s segment")
+                             f"{self.config.segment_seconds:g}-s segment")
+
+    def short_segments(self) -> str | None:
+        """A warning where a segment holds no more frames than the coverage model's travel
+        input spans: each frame's travel is then read mostly outside its segment."""
         hops = max(1, self.models.coverage.config.travel_hops)
-        if self.segment_frames <= self.travel_gap * hops:
-            raise InputError(f"{self.source}: a {seconds:g}-s segment holds {self.segment_frames} "
-                             f"frames at {record.fps:g} fps, no more than the coverage model's "
-                             f"travel input spans ({hops} hops of {self.travel_gap} frames); "
-                             f"check the frame rate (`c2d2 run --fps`) or give longer segments "
-                             f"(--segment-seconds)")
+        if self.segment_frames > self.travel_gap * hops:
+            return None
+        return (f"a {self.config.segment_seconds:g}-s segment holds {self.segment_frames} "
+                f"frames at {self.ingested.fps:g} fps, no more than the coverage model's travel "
+                f"input spans ({hops} hops of {self.travel_gap} frames), so each segment's "
+                f"learned coverage reads its neighbours' motion; if the frame rate is wrong, "
+                f"give the true one (`c2d2 run --fps`), else longer segments")
 
     def depth_stage(self) -> None:
         seq = self.sequence()
@@ -549,7 +552,8 @@ def run_video(source: Path, out: Path, config: RunConfig = RunConfig(),
     """Run (or resume) every stage; returns {'timing': seconds per stage, 'warnings': [...]}.
 
     Raises InputError for bad input; a geometric-branch failure is recorded, not raised.
-    Warnings (results written but incomplete): frames that did not decode, a geometric branch
+    Warnings (results written but incomplete or doubtful): segments no longer than the travel
+    input spans, frames that did not decode, a geometric branch
     that could not run, frame pairs the RGB-D odometry could not align, a pose graph stopped at
     its iteration cap. Notes: the frame rate an image folder is read at unless given; trailing
     frames that do not fill a segment get no verdict; for networks that read a self-calibrated
@@ -595,7 +599,7 @@ def run_video(source: Path, out: Path, config: RunConfig = RunConfig(),
             echo(f"note: the lens from the video: {run.lens_found().describe()}")
         if name == "ingest":
             run.check_length()
-    warnings = []
+    warnings = [short] if (short := run.short_segments()) else []
     if run.ingested.decode_warning:
         warnings.append(run.ingested.decode_warning)
     if geometric_error.is_file():
@@ -708,9 +712,7 @@ def _prepare(out: Path, config: RunConfig, source: Path, models: Models,
              region: np.ndarray | None) -> None:
     """Create the work directory; refuse one that holds a run of another video, image region
     (--mask), config or model files, and a simulated procedure with a frame rate or mask."""
-    if source.is_dir() and out.resolve() == source.resolve():
-        raise InputError(f"--out {out} is the input folder itself: the run's files would join "
-                         f"its images; choose another --out")
+    W.check_not_input(out, source)
     if not (out / W.CONFIG).is_file():  # a new run: refused before anything is written (a
         # folder holding a run says first how the options differ from its own)
         is_procedure(source, config.fps, region)

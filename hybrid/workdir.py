@@ -81,6 +81,14 @@ def make_folder(path: Path, option: str = "--out") -> Path:
     return path
 
 
+def check_not_input(out: Path, source: Path) -> None:
+    """Refuse an output folder that is the input folder itself: the outputs would join what it
+    reads (for a batch, each work folder would take its video's name)."""
+    if Path(source).is_dir() and Path(out).resolve() == Path(source).resolve():
+        raise InputError(f"--out {out} is the input folder itself: the outputs would join what "
+                         f"is read from it; choose another --out")
+
+
 def write_text(path: Path, text: str) -> Path:
     """Write a text file atomically."""
     path = Path(path)

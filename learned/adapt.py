@@ -142,7 +142,7 @@ def adapt_depth_model(checkpoint: Path, config: DepthConfig, seq: FrameSequence,
     start = load_depth_model(checkpoint, config.preset, device)
     level = photometric_error(start, seq)
     adapted = force or begun or level <= NOISY
-    W.make_folder(out, "--adapt-dir")
+    W.make_folder(out, "--adapt-dir (or --out)")
     W.write_json(previous, {**record, "photometric_error": level, "adapted": adapted})
     if not adapted:
         log.warning("%s: not adapted to: the depth model's photometric error on it is %.3f, "

@@ -1205,10 +1205,32 @@ def test_a_batch_from_another_folder_into_the_same_out_keeps_the_first_ones_runs
     assert snapshot(out / "a.avi") == finished and not (out / "a.avi" / W.ERROR).exists()
     with (out / "summary.csv").open() as f:
         rows = {row["video"]: row for row in csv.DictReader(f)}
-    assert sorted(rows) == [str((first / "a.avi").absolute()), str((second / "a.avi").absolute())]
-    assert rows[str((first / "a.avi").absolute())]["status"] == "done"
-    assert "could not be decoded" in rows[str((first / "a.avi").absolute())]["warnings"]
-    assert rows[str((second / "a.avi").absolute())]["status"] == "failed"
+    ours, theirs = str((first / "a.avi").resolve()), str((second / "a.avi").resolve())
+    assert sorted(rows) == [ours, theirs]
+    assert rows[ours]["status"] == "done" and "could not be decoded" in rows[ours]["warnings"]
+    assert rows[theirs]["status"] == "failed"
+
+
+def test_a_failure_is_written_only_into_a_work_folder_of_its_own_video(tmp_path):
+    """error.txt goes into the video's folder (made if need be), not into a file in its place,
+    a folder holding another video's run, or one whose config.json c2d2 did not write."""
+    from hybrid.batch import _record_failure
+
+    video = tmp_path / "a.avi"
+    video.write_bytes(b"")
+    own, fresh, file, other, foreign = (tmp_path / n for n in ("own", "fresh", "file", "other",
+                                                                "foreign"))
+    for folder, source in ((own, video), (other, tmp_path / "b.avi")):
+        folder.mkdir()
+        W.write_json(folder / W.CONFIG, {"source": {"path": str(source.resolve())}})
+    file.write_text("kept")
+    foreign.mkdir()
+    (foreign / W.CONFIG).write_text("{not json")
+    for work in (own, fresh, file, other, foreign):
+        _record_failure(video, work, "it failed")
+    assert (own / W.ERROR).read_text() == (fresh / W.ERROR).read_text() == "it failed\n"
+    assert file.read_text() == "kept"
+    assert not (other / W.ERROR).exists() and not (foreign / W.ERROR).exists()
 
 
 def test_batch_lists_the_video_files_of_the_folder_only(tmp_path):
@@ -1224,7 +1246,9 @@ def test_batch_lists_the_video_files_of_the_folder_only(tmp_path):
 
 @pytest.mark.parametrize("command", [["batch", "VIDEOS", "--out", "VIDEOS"],
                                      ["batch", "VIDEOS", "--out", "FILE"],
+                                     ["depth", "IMAGES", "--out", "IMAGES"],
                                      ["depth", "IMAGES", "--out", "FILE"],
+                                     ["demo", "--out", "FILE"],
                                      ["simulate", "--out", "FILE", "--max-frames", "2"]])
 def test_an_out_folder_that_is_the_input_or_a_file_is_refused(command, frames, tmp_path):
     videos, images, file = tmp_path / "videos", tmp_path / "images", tmp_path / "notes.txt"
@@ -1262,16 +1286,18 @@ def test_an_image_folder_read_at_a_rate_it_was_not_given_is_noted(tmp_path):
     assert frame_rate_note(tmp_path / "video.avi", RunConfig(), 25.0) is None
 
 
-def test_segments_no_longer_than_the_travel_input_are_refused(frames, tmp_path):
+def test_segments_no_longer_than_the_travel_input_are_a_warning(frames, tmp_path):
     """2-s segments of a 10-fps video hold 20 frames; the shipped coverage model's travel
-    (8 hops of 8 frames at 30 fps, so of 3 at 10) spans 24: every frame's travel would be read
-    mostly outside its segment (a frame rate read wrong gives the same, e.g. 0.001 fps)."""
+    (8 hops of 8 frames at 30 fps, so of 3 at 10) spans 24: each frame's travel is read mostly
+    outside its segment (a frame rate read wrong gives the same: a container that declared
+    0.001 fps gave 2-frame segments of 2,000 s, all marked assessable, with no word)."""
     video = write_video(tmp_path / "video.avi", frames[:110], FPS)
     out = tmp_path / "out"
-    message = assert_input_error(runner.invoke(app, ["run", str(video), "--out", str(out),
-                                                     "--segment-seconds", "2"]), str(video))
-    assert "holds 20 frames" in message and "(8 hops of 3 frames)" in message
-    assert not (out / W.DEPTH).exists()
+    result = runner.invoke(app, ["run", str(video), "--out", str(out), "--segment-seconds", "2"])
+    assert result.exit_code == 3, result.output
+    assert re.search(r"warning: a 2-s segment holds 20 frames at 10 fps, .*\(8 hops of 3 "
+                     r"frames\)", result.stderr)
+    assert len(json.loads((out / W.COVERAGE_JSON).read_text())["segments"]) == 5
 
 
 def test_an_all_black_mask_and_a_file_given_as_a_procedure_are_named(tmp_path):
