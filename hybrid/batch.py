@@ -67,11 +67,11 @@ def run_batch(folder: Path, out: Path, config: RunConfig | None = None, workers:
     config = config or RunConfig()
     videos = list_videos(folder)
     W.check_not_input(out, folder)
-    out = W.make_folder(out)
-    rows = _earlier_rows(out)
-    # Loaded before any video starts, so that networks this configuration cannot run are
+    # Loaded before anything is written, so that networks this configuration cannot run are
     # refused up front.
     models = Models.load(config, device if workers == 1 else "cpu")
+    out = W.make_folder(out)
+    rows = _earlier_rows(out)
     bar = tqdm(total=len(videos), desc="videos", unit="video", disable=not progress)
     if workers == 1:
         for video in videos:
