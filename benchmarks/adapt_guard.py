@@ -2,9 +2,9 @@
 
 For each input (simulated procedures, videos, image folders; folders of them as train-depth
 takes them), the depth model's photometric error on fixed batches of its triplets
-(`learned.adapt.photometric_error`, what `--adapt-steps` reads first) and whether it lies at
-or under `learned.adapt.NOISY` (adapted to) or above it (kept as it is), and the seconds the error
-took. Then, per folder given, the range of the errors.
+(`learned.adapt.photometric_error`, what `--adapt-steps` reads first) and whether it lies
+between `learned.adapt.CLEAR` and `NOISY` (adapted to) or outside (kept as it is), and the
+seconds the error took. Then, per folder given, the range of the errors.
 
     python benchmarks/adapt_guard.py data/train-pink data/train-dusk data/test data/val \
         ../shared/data/real-clip/colonoscopy_192px_6fps.mp4
@@ -18,7 +18,7 @@ from pathlib import Path
 
 import torch
 
-from learned.adapt import NOISY, photometric_error
+from learned.adapt import CLEAR, NOISY, photometric_error, worth_adapting
 from learned.checkpoints import SHIPPED_DEPTH
 from learned.frames import open_sequence
 from learned.model import load_depth_model
@@ -42,10 +42,10 @@ def main() -> None:
             error = photometric_error(model, seq)
             errors.append(error)
             print(f"{input_name(path)} {error:.4f} "
-                  f"{'adapted to' if error <= NOISY else 'kept as it is'} "
+                  f"{'adapted to' if worth_adapting(error) else 'kept as it is'} "
                   f"({time.perf_counter() - started:.1f} s)", flush=True)
         ranges[given] = (min(errors), max(errors), len(errors))
-    print(f"bound (learned.adapt.NOISY): {NOISY}")
+    print(f"bounds (learned.adapt.CLEAR, NOISY): {CLEAR}, {NOISY}")
     for given, (low, high, count) in ranges.items():
         print(f"{given}: {count} inputs, {low:.4f}-{high:.4f}")
 

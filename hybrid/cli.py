@@ -32,18 +32,18 @@ AdaptSteps = Annotated[int, typer.Option(min=0, help="First adapt the depth mode
                                          "input by this many steps of its own training loss "
                                          "on that input's frames (0: off; 1-2 s a step on 2 "
                                          "CPU cores), then read the geometric mean of the "
-                                         "adapted and the starting model's depth. Not "
-                                         "reliable: on held-out pink videos that depth was no "
-                                         "better than the model's own on average, and "
-                                         "adapting made the depth of dim, noisy videos much "
-                                         "worse (docs/depth.md, 'Adapting to the video'), so "
-                                         "an input the model reads as such is not adapted to "
-                                         "(--adapt-noisy).")]
-AdaptNoisy = Annotated[bool, typer.Option(
-    help="With --adapt-steps: adapt to an input even where the depth model's photometric error "
-    "on it marks it as dim and noisy (above learned.adapt.NOISY), as on every (dusk) "
-    "simulated video where adapting made the depth worse; without it such an input keeps the "
-    "model's own depth, with a warning.")]
+                                         "adapted and the starting model's depth. Only "
+                                         "where the model's photometric error on the input "
+                                         "lies between learned.adapt.CLEAR and NOISY: above, "
+                                         "on dim, noisy videos, adapting made the depth much "
+                                         "worse; below, on videos the model explains well, "
+                                         "mostly worse; between, mostly better "
+                                         "(docs/depth.md, 'Adapting to the video' and after). "
+                                         "Elsewhere the input keeps the model's own depth, "
+                                         "with a warning (--adapt-always).")]
+AdaptAlways = Annotated[bool, typer.Option(
+    help="With --adapt-steps: adapt to every input, whatever the depth model's photometric "
+    "error on it.")]
 SelfCalibrate = Annotated[bool, typer.Option(
     "--self-calibrate", help="Take K from structure from motion on up to 5 stretches of 120 "
     "frames (fusion/self_calibration.py; 1-4 minutes a video on 2 CPU cores) instead of the "
@@ -507,7 +507,7 @@ def depth(
     fps: Annotated[float | None, typer.Option(help="Frame rate, if the video's is missing or "
                                               "wrong (image folders: 30).")] = None,
     adapt_steps: AdaptSteps = 0,
-    adapt_noisy: AdaptNoisy = False,
+    adapt_always: AdaptAlways = False,
     self_calibrate: SelfCalibrate = False,
     contrast: Contrast = None,
     device: Device = "auto",
@@ -520,7 +520,7 @@ def depth(
     from learned.model import load_depth_model
 
     _check_contrast(contrast, self_calibrate)
-    _check_noisy(adapt_noisy, adapt_steps)
+    _check_always(adapt_always, adapt_steps)
     checkpoint, device = checkpoint or _shipped_checkpoint(), pick_device(device)
     model = load_depth_model(checkpoint, device=device)
     seq = open_sequence(input, (model.config.height, model.config.width), _read_mask(mask), fps)
@@ -529,7 +529,7 @@ def depth(
     calibration = _self_calibration(seq, contrast) if self_calibrate else None
     if adapt_steps:
         model = adapt_depth_model(checkpoint, model.config, seq, out / "adapted", adapt_steps,
-                                  True, device, adapt_noisy).model
+                                  True, device, adapt_always).model
     infer_to_folder(model, seq, out, progress=True, calibration=calibration)
     typer.echo(str(out))
 
@@ -556,9 +556,9 @@ def _only_with(given: bool, needed: bool, message: str) -> None:
         raise InputError(message)
 
 
-def _check_noisy(adapt_noisy: bool, adapt_steps: int) -> None:
-    _only_with(adapt_noisy, bool(adapt_steps),
-               "--adapt-noisy forces an adaptation: give --adapt-steps too")
+def _check_always(adapt_always: bool, adapt_steps: int) -> None:
+    _only_with(adapt_always, bool(adapt_steps),
+               "--adapt-always forces an adaptation: give --adapt-steps too")
 
 
 def _check_contrast(contrast: float | None, self_calibrate: bool) -> None:
@@ -579,7 +579,7 @@ def eval_depth(
     adapt_dir: Annotated[Path | None, typer.Option(help="Keep the adapted models here, one "
                                                    "folder per procedure (resumable); default: "
                                                    "a temporary folder.")] = None,
-    adapt_noisy: AdaptNoisy = False,
+    adapt_always: AdaptAlways = False,
     self_calibrate: SelfCalibrate = False,
     contrast: Contrast = None,
     device: Device = "auto",
@@ -599,7 +599,7 @@ def eval_depth(
 
     _only_with(adapt_dir is not None, bool(adapt_steps),
                "--adapt-dir keeps adapted models: give --adapt-steps too")
-    _check_noisy(adapt_noisy, adapt_steps)
+    _check_always(adapt_always, adapt_steps)
     if out is not None and not out.parent.is_dir():
         raise InputError(f"folder for --out does not exist: {out.parent}")
     _check_contrast(contrast, self_calibrate)
@@ -615,7 +615,7 @@ def eval_depth(
             seq = open_sequence(path, size)
             adaptation = None if not adapt_steps else adapt_depth_model(
                 checkpoint, model.config, seq, Path(adapt_dir or scratch) /
-                name.replace("/", "-"), adapt_steps, True, device, adapt_noisy)
+                name.replace("/", "-"), adapt_steps, True, device, adapt_always)
             read = model if adaptation is None else adaptation.model
             calibration = _self_calibration(seq, contrast) if self_calibrate else None
             results[name] = evaluate_sequence(read, seq, frames,

@@ -1,7 +1,8 @@
 """learned.adapt: adapting the depth model to one video lowers its own loss on that video; a
 folder of another adaptation is refused, and a low frame rate's chain term fits; a video the
-model reads as noisy is not adapted to unless forced; the depth read is the adapted and the
-starting model's together (Blend); `eval-depth` scores and `depth` writes it when asked."""
+model reads as noisy, or explains well already, is not adapted to unless forced; the depth
+read is the adapted and the starting model's together (Blend); `eval-depth` scores and
+`depth` writes it when asked."""
 
 from __future__ import annotations
 
@@ -125,7 +126,7 @@ def test_eval_depth_and_depth_score_and_write_the_adapted_model(start, simulated
     out = tmp_path / "eval.json"
     result = CliRunner().invoke(app, [
         "eval-depth", "--data", str(simulated), "--checkpoint", str(start), "--frames", "2",
-        "--adapt-steps", "3", "--adapt-dir", str(tmp_path / "runs"), "--adapt-noisy",
+        "--adapt-steps", "3", "--adapt-dir", str(tmp_path / "runs"), "--adapt-always",
         "--out", str(out)])
     assert result.exit_code == 0, result.output
     written = json.loads(out.read_text())
@@ -141,7 +142,7 @@ def test_eval_depth_and_depth_score_and_write_the_adapted_model(start, simulated
                                                                                    2)
     result = CliRunner().invoke(app, ["depth", str(simulated), "--out", str(tmp_path / "depth"),
                                       "--checkpoint", str(start), "--adapt-steps", "3",
-                                      "--adapt-noisy"])
+                                      "--adapt-always"])
     assert result.exit_code == 0, result.output
     with torch.no_grad():  # the same 3 steps, so the same model: its depth is what was written
         first = adapted.predict_depth(to_tensor(seq.frame(0)[None], "cpu"))[0, 0].numpy()
@@ -179,8 +180,8 @@ def test_the_blend_is_the_geometric_mean_in_the_adapted_unit(start, clip, tmp_pa
 
 @pytest.mark.parametrize("command", [
     ["eval-depth", "--data", "SIM", "--adapt-dir", "DIR"], ["eval-depth", "--data", "SIM",
-                                                            "--adapt-noisy"],
-    ["depth", "SIM", "--out", "DIR", "--adapt-noisy"]])
+                                                            "--adapt-always"],
+    ["depth", "SIM", "--out", "DIR", "--adapt-always"]])
 def test_adaptation_options_without_steps_are_refused(command, start, simulated, tmp_path):
     given = {"SIM": str(simulated), "DIR": str(tmp_path / "out")}
     result = CliRunner().invoke(app, [given.get(a, a) for a in command]
@@ -189,14 +190,20 @@ def test_adaptation_options_without_steps_are_refused(command, start, simulated,
     assert not (tmp_path / "out").exists()
 
 
-def test_a_video_read_as_noisy_is_not_adapted_to_unless_forced(start, clip, tmp_path,
-                                                              monkeypatch):
+@pytest.mark.parametrize(("bound", "past", "why"), [("NOISY", -1e-6, "above"),
+                                                    ("CLEAR", 1e-6, "below")])
+def test_a_video_outside_the_bounds_is_not_adapted_to_unless_forced(
+        bound, past, why, start, clip, tmp_path, monkeypatch, caplog):
     seq = open_sequence(clip, (TINY.height, TINY.width))
     level = photometric_error(load_depth_model(start), seq)
     assert level == photometric_error(load_depth_model(start), seq) > 0  # fixed draws
-    monkeypatch.setattr(learned.adapt, "NOISY", level - 1e-6)
+    monkeypatch.setattr(learned.adapt, "CLEAR", 0.0)
+    monkeypatch.setattr(learned.adapt, "NOISY", 1.0)
+    monkeypatch.setattr(learned.adapt, bound, level + past)
     kept = adapt_depth_model(start, TINY, seq, tmp_path / "adapted", steps=2)
     assert (kept.adapted, kept.photometric_error) == (False, level)
+    assert f"not adapted to: the depth model's photometric error on it is {level:.4f}, {why}" \
+        in caplog.text
     assert all(torch.equal(a, b) for a, b in zip(
         kept.model.state_dict().values(), load_depth_model(start).state_dict().values(),
         strict=True))
@@ -206,9 +213,9 @@ def test_a_video_read_as_noisy_is_not_adapted_to_unless_forced(start, clip, tmp_
     forced = adapt_depth_model(start, TINY, seq, tmp_path / "adapted", steps=2, force=True)
     assert forced.adapted and json.loads(record.read_text())["adapted"] is True
     assert clip_loss(forced.model, clip) != clip_loss(kept.model, clip)
-    monkeypatch.setattr(learned.adapt, "NOISY", level)  # at the bound it adapts
+    monkeypatch.setattr(learned.adapt, bound, level)  # at the bound it adapts
     assert adapt_depth_model(start, TINY, seq, tmp_path / "other", steps=2).adapted
-    monkeypatch.setattr(learned.adapt, "NOISY", level - 1e-6)  # an adaptation begun goes on
+    monkeypatch.setattr(learned.adapt, bound, level + past)  # an adaptation begun goes on
     assert adapt_depth_model(start, TINY, seq, tmp_path / "adapted", steps=2).adapted
     assert json.loads(record.read_text())["adapted"] is True
 
