@@ -78,6 +78,7 @@ PipelineDepth = Annotated[Path | None, typer.Option(help="Depth model (default: 
 Insertion = Annotated[bool, typer.Option(
     help="The video is an insertion, not a withdrawal (the look-ahead band lies where the "
     "camera is going; both branches).")]
+SegmentSeconds = Annotated[float, typer.Option(help="Segment length in seconds.")]
 PipelineCoverage = Annotated[Path | None, typer.Option(
     help="Coverage model, e.g. one adapted with `c2d2 adapt` (default: shipped); it must read "
     "the depth model's output (networks trained since 2026-11-30 record which depth model "
@@ -253,7 +254,7 @@ def run(
     depth_checkpoint: PipelineDepth = None,
     coverage_checkpoint: PipelineCoverage = None,
     insertion: Insertion = False,
-    segment_seconds: Annotated[float, typer.Option(help="Segment length.")] = 10.0,
+    segment_seconds: SegmentSeconds = 10.0,
     fisheye_fov: FisheyeFov = None,
     find_lens: FindLens = False,
     self_calibrate: ViewSelfCalibrate = False,
@@ -291,6 +292,7 @@ def batch(
     coverage_checkpoint: PipelineCoverage = None,
     insertion: Annotated[bool, typer.Option(
         help="The videos are insertions, not withdrawals (all of them).")] = False,
+    segment_seconds: SegmentSeconds = 10.0,
     fisheye_fov: FisheyeFov = None,
     find_lens: FindLens = False,
     self_calibrate: ViewSelfCalibrate = False,
@@ -305,8 +307,8 @@ def batch(
 
     config = _direction(RunConfig(depth_checkpoint=_opt(depth_checkpoint),
                                   coverage_checkpoint=_opt(coverage_checkpoint),
-                                  fisheye_fov_deg=fisheye_fov, find_lens=find_lens,
-                                  self_calibrate=self_calibrate), insertion)
+                                  segment_seconds=segment_seconds, fisheye_fov_deg=fisheye_fov,
+                                  find_lens=find_lens, self_calibrate=self_calibrate), insertion)
     result = run_batch(folder, out, config, workers=workers, device=pick_device(device))
     failed = [r for r in result.rows if r["status"] == "failed"]
     for r in failed:

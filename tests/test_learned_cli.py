@@ -486,3 +486,21 @@ def test_train_depth_refuses_to_resume_another_preset(tmp_path, tiny_checkpoint)
     result = runner.invoke(app, ["train-depth", "--data", str(folder), "--out", str(run),
                                  "--preset", "paper", "--steps", "1"])
     assert_clean_error(result, "checkpoint.safetensors", "'fast'", "paper")
+
+
+# --- every command's --out -----------------------------------------------------------------
+
+@pytest.mark.parametrize("command", [
+    ["simulate", "--procedures", "1"], ["depth", "SIM"], ["train-depth", "--data", "SIM"],
+    ["sfm-maps", "--data", "SIM"], ["train-coverage", "--data", "SIM"]])
+def test_an_output_folder_that_is_a_file_is_refused_and_the_file_kept(command, simulated,
+                                                                      tmp_path):
+    blocker = tmp_path / "notes.txt"
+    blocker.write_text("not a folder")
+    result = CliRunner().invoke(app, [str(simulated) if a == "SIM" else a for a in command]
+                                + ["--out", str(blocker)])
+    assert result.exit_code == 2 and "Traceback" not in result.output, result.output
+    last = result.stderr.strip().splitlines()[-1]  # after any progress bar
+    assert last.startswith(f"error: cannot make the output folder {blocker}: "), last
+    assert last.endswith("; choose another --out"), last
+    assert blocker.read_text() == "not a folder"

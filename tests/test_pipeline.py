@@ -1038,9 +1038,10 @@ def test_batch_with_two_workers_gives_what_one_gives(frames, tmp_path):
         assert two["mean_geometric"] == one["mean_geometric"]
 
 
-def test_batch_reads_every_video_as_an_insertion_when_told(frames, tmp_path, monkeypatch):
+def test_batch_reads_every_video_as_an_insertion_and_in_segments_as_told(frames, tmp_path,
+                                                                         monkeypatch):
     """`batch --insertion` runs each video as `run --insertion` does (its lumen's ℓ and the
-    travel cues the other way); without it, as a withdrawal."""
+    travel cues the other way), without it as a withdrawal; `--segment-seconds` as `run`'s."""
     import hybrid.batch
 
     videos = tmp_path / "videos"
@@ -1049,15 +1050,15 @@ def test_batch_reads_every_video_as_an_insertion_when_told(frames, tmp_path, mon
     seen = []
 
     def recorded(video, work, config, *args, **kwargs):
-        seen.append(config.reconstruction.lumen.withdrawal)
+        seen.append((config.reconstruction.lumen.withdrawal, config.segment_seconds))
         raise InputError("stop here")
 
     monkeypatch.setattr(hybrid.batch, "run_video", recorded)
-    for flag in ([], ["--insertion"]):
+    for flag in ([], ["--insertion"], ["--segment-seconds", "5"]):
         result = runner.invoke(app, ["batch", str(videos), "--out", str(tmp_path / "out"),
                                      *flag])
         assert result.exit_code == 1 and "stop here" in result.stderr
-    assert seen == [True, False]
+    assert seen == [(True, 10.0), (False, 10.0), (True, 5.0)]
 
 
 @pytest.mark.parametrize("fault", ["dies", "cannot start"])
